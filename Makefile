@@ -1,0 +1,16 @@
+# The README's commands. Each sets up what it needs (scripts/setup-env) on a fresh machine.
+.PHONY: test lint setup clean
+
+# Lint (ruff: flake8 + pep257 rule sets, the ROS Python conventions), then every test.
+test:
+	scripts/in-env ruff check .
+	scripts/in-env python -m pytest
+
+lint:
+	scripts/in-env ruff check .
+
+setup:
+	scripts/setup-env
+
+clean:
+	rm -rf ros2_ws/build ros2_ws/install ros2_ws/log
