@@ -1,0 +1,386 @@
+"""Extended state observers (notes §3, ``ESO.c``; paper eqs. 3-9, 17-22, 34, 38).
+
+Plant of order n (paper eq. 2): x1' = x2, …, xn' = x_{n+1} + b0·u, x_{n+1}' = h(t), y = x1;
+x_{n+1} is the "total disturbance" f. The height axis in velocity mode is used with
+n = 1 (y' = f + b0·u, the firmware's ``CONTROLLER_ORDER 1``) or n = 2.
+
+Observer (paper eq. 7): z' = A z + B u + L (y − z1), L = (β1 … β_{n+1}). Error
+dynamics e' = A_e e + E h with A_e = A − L C (eq. 8). Bandwidth tuning (eq. 9, 18) puts
+all n+1 poles at −ω0: β_j = C(n+1, j)·ω0^j.
+
+Discretizations:
+
+* ``euler`` — the firmware's explicit Euler (notes §3.2): z(k+1) = z + h(A z + B u + L e),
+  e = y(k) − z1(k). The returned state is the one-step prediction z(k+1). Error matrix
+  I + h·A_e, stable iff h < min over the continuous poles λ of −2·Re λ/|λ|²
+  (ω0·h < 2 with bandwidth gains).
+* ``zoh`` — the current estimator of Miklosovic, Radke & Gao (ACC 2006, "Discrete
+  implementation and generalization of the extended state observer"): predict with the
+  exact zero-order-hold model, z̄ = Φ z + Γ u, then correct with the new sample,
+  z = z̄ + L_c (y − z̄1). Error matrix (I − L_c C) Φ; :func:`zoh_gains` places all its
+  eigenvalues at e^(−ω0 h) (or at e^(λ h) for explicit betas). The returned state is
+  z(k|k), the estimate at the sample time of y. Here ``u`` is the command held over the
+  interval that just ended.
+
+Peaking (notes §3.4): the step functions take optional ``ext_limit`` (clamp of |z_{n+1}|)
+and ``ext_rate_limit`` (clamp of its change per step); ``None`` switches each off.
+"""
+
+from __future__ import annotations
+
+from math import comb
+from typing import Sequence
+
+import numpy as np
+from scipy.linalg import expm
+
+from .nonlinear import fal
+from .ops import ARRAY, SCALAR
+
+
+# ---------------------------------------------------------------- gains and analysis
+def bandwidth_gains(n: int, w0_rad_s: float) -> tuple[float, ...]:
+    """Observer gains with all n+1 poles at −ω0: β_j = C(n+1, j)·ω0^j, j = 1..n+1 (eq. 18)."""
+    _check_order(n)
+    if not (w0_rad_s > 0.0):
+        raise ValueError(f'ESO bandwidth w0_rad_s = {w0_rad_s}: must be > 0 rad/s')
+    return tuple(float(comb(n + 1, j)) * w0_rad_s ** j for j in range(1, n + 2))
+
+
+def seed_gains_order1(w0_rad_s: float) -> tuple[float, float]:
+    """Return the firmware's order-1 gains (3ω, 3ω²): (270, 24300) at ω = 90, (180, 10800) at 60.
+
+    These are the first two terms of the order-2 formula (``GetLADRCParam``), not the
+    order-1 bandwidth gains (2ω, ω²). The error poles are the roots of
+    s² + 3ω s + 3ω²: s = ω(−1.5 ± j·0.866), |s| = √3·ω, damping √3/2 = 0.866. At ω = 90
+    they sit at |s| = 155.9 rad/s (24.8 Hz), not at the notes' "14.6 Hz" label
+    (≈ ω/2π = 14.3 Hz); at ω = 60, |s| = 103.9 rad/s (16.5 Hz), not "9.8 Hz".
+    """
+    if not (w0_rad_s > 0.0):
+        raise ValueError(f'w0_rad_s = {w0_rad_s}: must be > 0 rad/s')
+    return 3.0 * w0_rad_s, 3.0 * w0_rad_s ** 2
+
+
+def static_error(n: int, w0_rad_s: float, h0: float) -> tuple[float, ...]:
+    """Return the static errors (e1 … e_{n+1}) under a constant disturbance rate h0 (eq. 19).
+
+    e_{i+1} = C(n+1, i)·h0 / ω0^(n+1−i), i = 0..n, for bandwidth gains (e = x − z).
+    """
+    _check_order(n)
+    return tuple(comb(n + 1, i) * h0 / w0_rad_s ** (n + 1 - i) for i in range(n + 1))
+
+
+def continuous_matrices(n: int, betas: Sequence[float], b0: float):
+    """Paper eq. 3/7/8 matrices ``(A, B, C, L, A_e)`` of an order-n LESO (n+1 states)."""
+    _check_order(n)
+    betas = _check_betas(n, betas)
+    m = n + 1
+    a = np.eye(m, k=1)
+    b = np.zeros(m)
+    b[n - 1] = b0
+    c = np.zeros(m)
+    c[0] = 1.0
+    ell = np.array(betas, dtype=float)
+    return a, b, c, ell, a - np.outer(ell, c)
+
+
+def euler_is_stable(n: int, betas: Sequence[float], h_s: float) -> bool:
+    """Return True when the explicit-Euler error dynamics I + h·A_e have spectral radius < 1."""
+    _check_order(n)
+    *_, a_e = continuous_matrices(n, betas, 1.0)
+    m = np.eye(n + 1) + h_s * a_e
+    return bool(max(abs(np.linalg.eigvals(m))) < 1.0)
+
+
+def euler_stability_limit(n: int, betas: Sequence[float] | None = None) -> float:
+    """Largest step for which the explicit-Euler ESO is stable.
+
+    Without ``betas`` (bandwidth gains): the bound on ω0·h, which is exactly 2 for every n
+    (all poles at −ω0 map to 1 − ω0 h). With ``betas``: the bound on h in seconds,
+    min over the continuous poles λ of −2·Re λ / |λ|² (|1 + hλ| < 1).
+    """
+    _check_order(n)
+    if betas is None:
+        return 2.0
+    betas = _check_betas(n, betas)
+    lam = np.roots([1.0, *betas])
+    if np.any(lam.real >= 0.0):
+        raise ValueError(f'ESO betas {betas} give a continuous observer that is not stable'
+                         ' (a pole with Re >= 0); no step size helps')
+    return float(np.min(-2.0 * lam.real / np.abs(lam) ** 2))
+
+
+def zoh_matrices(n: int, b0: float, h_s: float):
+    """Exact ZOH model of the integrator chain: ``(Phi, Gamma)`` with Phi_ij = h^(j−i)/(j−i)!."""
+    _check_order(n)
+    m = n + 1
+    a = np.eye(m, k=1)
+    b = np.zeros(m)
+    b[n - 1] = b0
+    big = np.zeros((m + 1, m + 1))
+    big[:m, :m] = a * h_s
+    big[:m, m] = b * h_s
+    ex = expm(big)
+    return ex[:m, :m], ex[:m, m]
+
+
+def zoh_gains_from_poles(n: int, poles_z: Sequence[complex], h_s: float) -> tuple[float, ...]:
+    """Current-estimator gains L_c placing eig((I − L_c C)Φ) at ``poles_z`` (Ackermann).
+
+    Worked in time-scaled coordinates x̃_i = h^(i−1) x_i, where Φ has the entries
+    1/(j−i)! independent of h, so the solve is well conditioned at any h; then
+    L_i = L̃_i / h^(i−1).
+    """
+    _check_order(n)
+    m = n + 1
+    if len(poles_z) != m:
+        raise ValueError(f'need {m} discrete poles for an order-{n} ESO, got {len(poles_z)}')
+    phi1, _ = zoh_matrices(n, 0.0, 1.0)
+    c = np.zeros(m)
+    c[0] = 1.0
+    cp = c @ phi1                       # the pair (Phi, C·Phi) of the current estimator
+    obs = np.array([cp @ np.linalg.matrix_power(phi1, i) for i in range(m)])
+    coeffs = np.real(np.poly(np.asarray(poles_z)))
+    p_phi = sum(cf * np.linalg.matrix_power(phi1, m - i) for i, cf in enumerate(coeffs))
+    e_last = np.zeros(m)
+    e_last[-1] = 1.0
+    l_scaled = p_phi @ np.linalg.solve(obs, e_last)
+    return tuple(float(l_scaled[i] / h_s ** i) for i in range(m))
+
+
+def zoh_gains(n: int, w0_rad_s: float, h_s: float) -> tuple[float, ...]:
+    """Current-estimator gains with all error eigenvalues at β = e^(−ω0 h) (Miklosovic 2006).
+
+    Closed forms (checked in the tests): n = 1: (1 − β², (1 − β)²/h);
+    n = 2: (1 − β³, 3(1 − β)²(1 + β)/(2h), (1 − β)³/h²).
+    """
+    if not (w0_rad_s > 0.0 and h_s > 0.0):
+        raise ValueError(f'zoh_gains: need w0_rad_s > 0 and h_s > 0, got {w0_rad_s}, {h_s}')
+    beta = float(np.exp(-w0_rad_s * h_s))
+    return zoh_gains_from_poles(n, [beta] * (n + 1), h_s)
+
+
+def zoh_gains_from_betas(n: int, betas: Sequence[float], h_s: float) -> tuple[float, ...]:
+    """ZOH gains for explicit continuous betas: each continuous pole λ maps to e^(λh)."""
+    betas = _check_betas(n, betas)
+    lam = np.roots([1.0, *betas])
+    return zoh_gains_from_poles(n, np.exp(lam * h_s), h_s)
+
+
+# ---------------------------------------------------------------- fast ops-generic steps
+def _limit_ext(ops, old, new, ext_limit, ext_rate_limit):
+    """Peaking guard on the extended state (notes §3.4): rate limit, then magnitude."""
+    if ext_rate_limit is not None:
+        new = old + ops.clip(new - old, -ext_rate_limit, ext_rate_limit)
+    if ext_limit is not None:
+        new = ops.clip(new, -ext_limit, ext_limit)
+    return new
+
+
+def eso1_euler_step(ops, z1, z2, y, u, b1, b2, b0, h_s, ext_limit=None, ext_rate_limit=None):
+    """Order-1 ESO, explicit Euler, exactly the firmware's ``EsoUpdate`` (CONTROLLER_ORDER 1).
+
+    ε = y − z1; z1 += h(z2 + β1 ε + b0 u); z2 += h β2 ε. Returns ``(z1, z2)`` at k+1.
+    """
+    eps = y - z1
+    nz1 = z1 + h_s * (z2 + b1 * eps + b0 * u)
+    nz2 = z2 + h_s * b2 * eps
+    if ext_limit is not None or ext_rate_limit is not None:
+        nz2 = _limit_ext(ops, z2, nz2, ext_limit, ext_rate_limit)
+    return nz1, nz2
+
+
+def eso2_euler_step(ops, z1, z2, z3, y, u, b1, b2, b3, b0, h_s, ext_limit=None,
+                    ext_rate_limit=None):
+    """Order-2 ESO, explicit Euler (the firmware's order-2 ``EsoUpdate``, with ε = y − z1).
+
+    z1 += h(z2 + β1 ε); z2 += h(z3 + β2 ε + b0 u); z3 += h β3 ε. Returns ``(z1, z2, z3)``.
+    """
+    eps = y - z1
+    nz1 = z1 + h_s * (z2 + b1 * eps)
+    nz2 = z2 + h_s * (z3 + b2 * eps + b0 * u)
+    nz3 = z3 + h_s * b3 * eps
+    if ext_limit is not None or ext_rate_limit is not None:
+        nz3 = _limit_ext(ops, z3, nz3, ext_limit, ext_rate_limit)
+    return nz1, nz2, nz3
+
+
+def eso1_zoh_step(ops, z1, z2, y, u, l1, l2, b0, h_s, ext_limit=None, ext_rate_limit=None):
+    """Order-1 current-estimator ESO (ZOH prediction, then correction with y(k)).
+
+    ``l1, l2`` from :func:`zoh_gains`; ``u`` is the command held since the last sample.
+    Returns ``(z1, z2)`` = z(k|k).
+    """
+    p1 = z1 + h_s * (z2 + b0 * u)
+    eps = y - p1
+    nz2 = z2 + l2 * eps
+    if ext_limit is not None or ext_rate_limit is not None:
+        nz2 = _limit_ext(ops, z2, nz2, ext_limit, ext_rate_limit)
+    return p1 + l1 * eps, nz2
+
+
+def eso2_zoh_step(ops, z1, z2, z3, y, u, l1, l2, l3, b0, h_s, ext_limit=None,
+                  ext_rate_limit=None):
+    """Order-2 current-estimator ESO (ZOH prediction, then correction). Returns z(k|k)."""
+    hh = 0.5 * h_s * h_s
+    p1 = z1 + h_s * z2 + hh * (z3 + b0 * u)
+    p2 = z2 + h_s * (z3 + b0 * u)
+    eps = y - p1
+    nz3 = z3 + l3 * eps
+    if ext_limit is not None or ext_rate_limit is not None:
+        nz3 = _limit_ext(ops, z3, nz3, ext_limit, ext_rate_limit)
+    return p1 + l1 * eps, p2 + l2 * eps, nz3
+
+
+def compensate1(ops, z1, z2, e1, b1):
+    """Paper eq. 22 for order 1: z' = z + (e1, β1·e1), e1 = y − z1 at the same instant."""
+    return z1 + e1, z2 + b1 * e1
+
+
+def compensate2(ops, z1, z2, z3, e1, b1, b2):
+    """Paper eq. 22 for order 2: z' = z + (e1, β1·e1, β2·e1)."""
+    return z1 + e1, z2 + b1 * e1, z3 + b2 * e1
+
+
+# ---------------------------------------------------------------- general classes
+class LinearESO:
+    """Order-n linear ESO in the paper's matrix form (numpy; for analysis and offline use).
+
+    Give either ``w0_rad_s`` (bandwidth gains) or explicit ``betas``. ``discretization``
+    is ``'euler'`` (the firmware's) or ``'zoh'`` (current estimator, gains from the
+    continuous poles mapped by e^(λh)). With ``compensate=True`` :meth:`update` returns
+    z' = z + D, D_i = β_{i−1}·e1 (β0 = 1, paper eq. 22).
+
+    :meth:`update` returns the estimate at the sample time of ``y``: for Euler that is
+    the state before the step (predicted last tick, plus D if compensating), after
+    which the state advances to the prediction z(k+1), kept in :attr:`z`; for ZOH it is
+    z(k|k) (plus D from the a-posteriori e1). Compensation of the ZOH form uses the
+    continuous betas, an approximation valid for ω0·h ≪ 1.
+    """
+
+    def __init__(self, n: int, b0: float, h_s: float, w0_rad_s: float | None = None,
+                 betas: Sequence[float] | None = None, discretization: str = 'euler',
+                 compensate: bool = False):
+        _check_order(n)
+        if (w0_rad_s is None) == (betas is None):
+            raise ValueError('LinearESO: give exactly one of w0_rad_s (bandwidth tuning) or'
+                             ' betas (explicit gains)')
+        if not (h_s > 0.0):
+            raise ValueError(f'LinearESO: h_s = {h_s} must be > 0 (seconds)')
+        if discretization not in ('euler', 'zoh'):
+            raise ValueError(f"LinearESO: discretization = {discretization!r}; use 'euler' or"
+                             " 'zoh'")
+        self.n, self.b0, self.h_s = n, float(b0), float(h_s)
+        self.betas = bandwidth_gains(n, w0_rad_s) if betas is None else _check_betas(n, betas)
+        self.discretization = discretization
+        self.compensate = compensate
+        self.A, self.B, self.C, self.L, self.A_e = continuous_matrices(n, self.betas, b0)
+        if discretization == 'zoh':
+            self.phi, self.gamma = zoh_matrices(n, b0, h_s)
+            if w0_rad_s is not None:
+                self.l_c = np.array(zoh_gains(n, w0_rad_s, h_s))
+            else:
+                self.l_c = np.array(zoh_gains_from_betas(n, self.betas, h_s))
+        self._d = np.array((1.0, *self.betas[:-1]))     # compensator weights, β0 = 1
+        self.z = np.zeros(n + 1)
+
+    def discrete_error_matrix(self) -> np.ndarray:
+        """Error-dynamics matrix: I + h·A_e (euler) or (I − L_c C)·Φ (zoh)."""
+        if self.discretization == 'euler':
+            return np.eye(self.n + 1) + self.h_s * self.A_e
+        return (np.eye(self.n + 1) - np.outer(self.l_c, self.C)) @ self.phi
+
+    def reset(self, y0: float, rest: Sequence[float] | None = None) -> None:
+        """Set z1 = y0 and the higher states to ``rest`` (zeros by default, as ``ESOInit``)."""
+        self.z = np.zeros(self.n + 1)
+        self.z[0] = y0
+        if rest is not None:
+            self.z[1:] = rest
+
+    def update(self, y: float, u: float) -> np.ndarray:
+        """Feed one sample (y, u); return the estimate at this sample time (see class doc)."""
+        if self.discretization == 'euler':
+            e1 = y - self.z[0]
+            out = self.z + self._d * e1 if self.compensate else self.z.copy()
+            self.z = self.z + self.h_s * (self.A @ self.z + self.B * u + self.L * e1)
+            return out
+        pred = self.phi @ self.z + self.gamma * u
+        self.z = pred + self.l_c * (y - pred[0])
+        if self.compensate:
+            return self.z + self._d * (y - self.z[0])
+        return self.z.copy()
+
+
+class NonlinearESO:
+    """Order-n fal-ESO (paper eq. 4 with g_i = fal(·, α_i, δ), eq. 38), explicit Euler.
+
+    With ``compensate=True`` :meth:`update` returns z' = z + D with
+    D_i = β_{i−1}·g_{i−1}(e1), g_0(e) = e (paper eq. 34/39). Inside |e1| ≤ δ it equals a
+    :class:`LinearESO` with gains β_i·δ^(α_i − 1). Same time convention as LinearESO/euler.
+    """
+
+    def __init__(self, n: int, b0: float, h_s: float, betas: Sequence[float],
+                 alphas: Sequence[float], delta: float, compensate: bool = False):
+        _check_order(n)
+        self.betas = _check_betas(n, betas)
+        if len(alphas) != n + 1 or not all(0.0 < a <= 1.0 for a in alphas):
+            raise ValueError(f'NonlinearESO: need {n + 1} alphas in (0, 1], got {alphas}')
+        if not (delta > 0.0):
+            raise ValueError(f'NonlinearESO: delta = {delta} must be > 0 (linear-zone width)')
+        if not (h_s > 0.0):
+            raise ValueError(f'NonlinearESO: h_s = {h_s} must be > 0 (seconds)')
+        self.n, self.b0, self.h_s = n, float(b0), float(h_s)
+        self.alphas = np.array(alphas, dtype=float)
+        self.delta = float(delta)
+        self.compensate = compensate
+        self.A, self.B, *_ = continuous_matrices(n, self.betas, b0)
+        self._beta = np.array(self.betas)
+        self.z = np.zeros(n + 1)
+
+    def gains(self, e1: float) -> np.ndarray:
+        """g_i(e1) = fal(e1, α_i, δ) for i = 1..n+1."""
+        return fal(ARRAY, np.full(self.n + 1, float(e1)), self.alphas, self.delta)
+
+    def reset(self, y0: float, rest: Sequence[float] | None = None) -> None:
+        """Set z1 = y0 and the higher states to ``rest`` (zeros by default)."""
+        self.z = np.zeros(self.n + 1)
+        self.z[0] = y0
+        if rest is not None:
+            self.z[1:] = rest
+
+    def update(self, y: float, u: float) -> np.ndarray:
+        """Feed one sample; return the estimate at this sample time (+ D if compensating)."""
+        e1 = y - self.z[0]
+        g = self.gains(e1)
+        out = self.z.copy()
+        if self.compensate:
+            out[0] += e1
+            out[1:] += self._beta[:-1] * g[:-1]
+        self.z = self.z + self.h_s * (self.A @ self.z + self.B * u + self._beta * g)
+        return out
+
+
+# ---------------------------------------------------------------- helpers
+def _check_order(n: int) -> None:
+    if not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f'ESO order n = {n!r}: must be an integer >= 1 (plant order)')
+
+
+def _check_betas(n: int, betas: Sequence[float]) -> tuple[float, ...]:
+    betas = tuple(float(b) for b in betas)
+    if len(betas) != n + 1:
+        raise ValueError(f'an order-{n} ESO needs {n + 1} gains beta_1..beta_{n + 1}, got'
+                         f' {len(betas)}: {betas}')
+    if not all(np.isfinite(b) and b > 0.0 for b in betas):
+        raise ValueError(f'ESO gains {betas}: each must be a finite number > 0')
+    return betas
+
+
+__all__ = [
+    'ARRAY', 'LinearESO', 'NonlinearESO', 'SCALAR', 'bandwidth_gains', 'compensate1',
+    'compensate2',
+    'continuous_matrices', 'eso1_euler_step', 'eso1_zoh_step', 'eso2_euler_step',
+    'eso2_zoh_step', 'euler_is_stable', 'euler_stability_limit', 'seed_gains_order1',
+    'static_error', 'zoh_gains', 'zoh_gains_from_betas', 'zoh_gains_from_poles',
+    'zoh_matrices',
+]

@@ -1,0 +1,139 @@
+"""1-D Kalman filter: capacitive gap fused with encoder increments (notes §4, ``Kalman_Int.c``).
+
+Model (``Kalman_Int.c`` header comment): gap(k) = gap(k−1) + Δenc(k) + w(k), reading
+z(k) = gap(k) + δ(k); Var w = Q, Var δ = R. Δenc is the nozzle's encoder increment this
+tick, Z positive up, so moving up by Δenc increases the gap by Δenc (a fixed sheet;
+sheet motion is what Q stands for).
+
+The firmware keeps the gain in 1/1000 (``_nKg = 1000*P/(P+R)``) and everything in int
+UnitP / UnitP²; here all is float mm / mm². It starts with P = 0 although its own comment
+says it should not (a zero P with small Q makes the filter ignore the sensor for a long
+time); :class:`HeightKalman` starts with P = p0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+from .ops import SCALAR
+
+
+@dataclass(frozen=True)
+class KalmanParams:
+    """Noise variances of the gap filter, in mm².
+
+    ``q_mm2``: per-tick process variance (sheet motion, encoder/structure error);
+    ``r_mm2``: capacitive reading variance; ``p0_mm2``: variance assumed at (re)start.
+    """
+
+    q_mm2: float = 1e-6
+    r_mm2: float = 1e-4
+    p0_mm2: float = 1e-4
+
+    def problems(self) -> list[str]:
+        """Readable reasons why these parameters cannot run; empty when valid."""
+        out = []
+        for name in ('q_mm2', 'r_mm2', 'p0_mm2'):
+            val = getattr(self, name)
+            if not isinstance(val, (int, float)) or not math.isfinite(val):
+                out.append(f'kalman.{name} = {val!r}: must be a finite number')
+        if out:
+            return out
+        if self.q_mm2 <= 0.0:
+            out.append(f'kalman.q_mm2 = {self.q_mm2}: must be > 0, otherwise the gain decays'
+                       ' to 0 and the filter stops listening to the sensor (encoder drift)')
+        if self.r_mm2 <= 0.0:
+            out.append(f'kalman.r_mm2 = {self.r_mm2}: must be > 0 (a noiseless sensor needs no'
+                       ' filter; the gain would be 1)')
+        if self.p0_mm2 < 0.0:
+            out.append(f'kalman.p0_mm2 = {self.p0_mm2}: a variance cannot be negative')
+        return out
+
+
+def kalman_step(ops, x, p, z, dz_enc, q, r):
+    """One predict/update step; returns ``(x, p, k)`` (notes §4 eqs. (1)-(5)).
+
+    Predict x⁻ = x + Δenc, P⁻ = P + Q; gain K = P⁻/(P⁻ + R); update
+    x = x⁻ + K(z − x⁻), P = (1 − K)P⁻.
+    """
+    xp = x + dz_enc
+    pp = p + q
+    k = pp / (pp + r)
+    return xp + k * (z - xp), (1.0 - k) * pp, k
+
+
+def steady_state_gain(q: float, r: float) -> float:
+    """Limit of K for a scalar random walk: P⁻ = (Q + √(Q² + 4QR))/2, K = P⁻/(P⁻ + R).
+
+    P⁻ solves the scalar Riccati equation P⁻ = P⁻R/(P⁻ + R) + Q.
+    """
+    if not (q > 0.0 and r > 0.0):
+        raise ValueError(f'steady_state_gain: need q > 0 and r > 0, got {q}, {r}')
+    pm = 0.5 * (q + math.sqrt(q * q + 4.0 * q * r))
+    return pm / (pm + r)
+
+
+class HeightKalman:
+    """Gap filter with the reset rules of the follow controller (scalar).
+
+    Rules (the notes enable the filter once followed, ``随动到位之后开启``):
+
+    * :meth:`reset` (call when the filter is switched on, e.g. on reaching "followed"):
+      x = the current reading, P = p0.
+    * An invalid reading (``valid=False`` or not finite): the tick is coasted on the
+      encoder alone (x += Δenc, P += Q) and the filter is marked for re-initialisation;
+      the next valid reading restarts it (x = reading, P = p0). More than
+      ``max_coast_ticks`` invalid ticks in a row leave it uninitialised (returns nan).
+    * A jump: |z − x⁻| > ``gate_mm`` (e.g. a sheet edge or a ridge under the nozzle, a
+      change the random-walk model cannot explain) re-initialises on the reading.
+
+    ``resets`` counts the re-initialisations for diagnostics.
+    """
+
+    def __init__(self, params: KalmanParams = KalmanParams(), gate_mm: float = 0.5,
+                 max_coast_ticks: int = 20):
+        bad = params.problems()
+        if not (gate_mm > 0.0):
+            bad.append(f'kalman gate_mm = {gate_mm}: must be > 0 mm')
+        if max_coast_ticks < 0:
+            bad.append(f'kalman max_coast_ticks = {max_coast_ticks}: must be >= 0')
+        if bad:
+            raise ValueError('; '.join(bad))
+        self.params, self.gate_mm, self.max_coast_ticks = params, gate_mm, max_coast_ticks
+        self.x = math.nan
+        self.p = math.nan
+        self.k = math.nan
+        self.initialised = False
+        self.coast_ticks = 0
+        self.resets = 0
+
+    def reset(self, z_mm: float) -> None:
+        """Start on reading ``z_mm`` with P = p0."""
+        self.x, self.p, self.k = float(z_mm), self.params.p0_mm2, 1.0
+        self.initialised = True
+        self.coast_ticks = 0
+
+    def update(self, z_mm: float, dz_enc_mm: float, valid: bool = True) -> float:
+        """Fuse one reading with this tick's encoder increment; return the gap estimate."""
+        ok = valid and math.isfinite(z_mm)
+        if not ok:
+            if not self.initialised or self.coast_ticks >= self.max_coast_ticks:
+                self.initialised = False
+                self.x = math.nan
+                return self.x
+            self.coast_ticks += 1
+            self.x += dz_enc_mm
+            self.p += self.params.q_mm2
+            return self.x
+        if not self.initialised or self.coast_ticks > 0:
+            self.resets += 1
+            self.reset(z_mm)
+            return self.x
+        if abs(z_mm - (self.x + dz_enc_mm)) > self.gate_mm:
+            self.resets += 1
+            self.reset(z_mm)
+            return self.x
+        self.x, self.p, self.k = kalman_step(SCALAR, self.x, self.p, z_mm, dz_enc_mm,
+                                             self.params.q_mm2, self.params.r_mm2)
+        return self.x

@@ -1,0 +1,298 @@
+"""The composite LADRC height controller (notes §3, ``LADRC.c`` ``UpdateLADRC``).
+
+One tick, in the seed's order, for a gap reading y, encoder position and target v:
+
+1. optional Kalman (notes §4): fused gap from the reading and the encoder
+   increment; the fused gap replaces y for the observer;
+2. ESO (order 1 or 2, 'euler' = the firmware's ``EsoUpdate`` or 'zoh' current
+   estimator) fed the APPLIED (limited) output of the previous tick; optional
+   paper eq. 22 compensation and peaking limits (notes §3.4);
+3. compound TD on the target (``CompELDTUpdate``) → r, ṙ (and r̈ = Δṙ/h);
+4. law u = (u0 − z_{n+1})/b0 in the configured form (:mod:`law`);
+5. saturation ±v_max and acceleration limit a_max·h (``UpdateLADRC``).
+
+Bumpless start (:meth:`LADRC.reset`): the seed re-initialises the LADRC every
+tick from the PID's output while not followed (``Follow_OnStep``:
+``InitLADRC(height, height, pidOut)``). Here TD at the current gap (at rest),
+ESO z1 = gap and the disturbance state z_{n+1} = −b0·u_prev, i.e. the
+disturbance that makes u_prev the equilibrium command (ẏ = b0·u + f = 0); the
+seed starts it at 0, which makes the first LADRC output jump to (u0 − 0)/b0
+— an acceleration-limited bump. With this choice a step with the same reading
+and target returns u_prev.
+
+Scalar and batch share :meth:`LADRC.step`: built with :meth:`LADRC.batch` the
+numeric parameters are numpy arrays (one row per parameter set) and the same
+arithmetic runs on arrays through the ``ARRAY`` ops.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .eso import (
+    compensate1,
+    compensate2,
+    eso1_euler_step,
+    eso1_zoh_step,
+    eso2_euler_step,
+    eso2_zoh_step,
+)
+from .kalman import kalman_step
+from .law import apply_limits, form_weights, law1, law2
+from .ops import ARRAY, SCALAR
+from .params import ControllerParams, check, eso_gains, law_gains
+from .td import td_step_firmware
+
+# values that must be equal in every row of a batch (they select the code path)
+_STRUCTURAL = ('order', 'discretization', 'compensator', 'kalman', 'use_td', 'ext_limit',
+               'ext_rate_limit')
+
+
+def _constants(p: ControllerParams) -> dict:
+    """Per-tick constants of one parameter set, derived once."""
+    e = p.eso
+    gains = eso_gains(p)
+    kp, kd = law_gains(p)
+    use_td, w_rate, w_acc = form_weights(p.law.form, e.order)
+    g = gains + (0.0,) * (3 - len(gains))
+    return dict(
+        h=p.h_s,
+        ta=(p.td_a.k1, p.td_a.k2, p.td_a.r_per_s, p.td_a.alpha),
+        tb=(p.td_b.k1, p.td_b.k2, p.td_b.r_per_s, p.td_b.alpha),
+        g1=g[0], g2=g[1], g3=g[2], b0=e.b0,
+        # compensator weights are the continuous betas (paper eq. 22: D_i = β_{i−1}·e1)
+        c1=(g[0] if e.discretization == 'euler' else
+            _cont_betas(p)[0]),
+        c2=(g[1] if e.discretization == 'euler' else _cont_betas(p)[1]),
+        kp=kp, kd=kd, w_rate=w_rate, w_acc=w_acc,
+        v_max=p.limits.v_max_mm_s, du_max=p.limits.a_max_mm_s2 * p.h_s,
+        q=p.kalman.q_mm2, r=p.kalman.r_mm2, p0=p.kalman.p0_mm2,
+        order=e.order, discretization=e.discretization, compensator=e.compensator,
+        kalman=p.kalman.enabled, use_td=use_td,
+        ext_limit=e.disturbance_limit > 0.0, ext_rate_limit=e.disturbance_rate_limit > 0.0,
+        ext_limit_v=e.disturbance_limit, ext_rate_limit_v=e.disturbance_rate_limit,
+    )
+
+
+def _cont_betas(p: ControllerParams) -> tuple[float, ...]:
+    from .eso import bandwidth_gains
+    return bandwidth_gains(p.eso.order, p.eso.w0_rad_s)
+
+
+class LADRC:
+    """Composite LADRC: compound TD + ESO (+ Kalman) + law + limits, scalar or batch.
+
+    Scalar: ``LADRC(params)``; batch of N parameter sets: ``LADRC.batch([p0, p1, …])``
+    (inputs and outputs are then arrays of shape (N,); scalars broadcast). Parameter
+    sets of a batch may differ in every number but must share the structure (ESO
+    order, discretization, compensator, Kalman on/off, law form's use of the TD,
+    peaking limits on/off).
+
+    After :meth:`step` these attributes hold the internals of the tick: ``td_x1``,
+    ``td_x2`` (r, ṙ), ``td_ddr`` (r̈), ``z1``, ``z2``, ``z3`` (order 2; 0 for order
+    1), ``fused_gap_mm`` (= the reading without Kalman), ``kalman_p``, ``kalman_k``,
+    ``u0``, ``p_term``, ``d_term``, ``ff_term``, ``disturbance_term``
+    (−z_{n+1}/b0), ``u_unlimited``, ``saturated``, ``rate_limited`` and ``u`` (the
+    applied output, mm/s).
+    """
+
+    def __init__(self, params: ControllerParams | None = None, *, _consts=None, _ops=None,
+                 _n=None) -> None:
+        if _consts is None:
+            self.params = check(params if params is not None else ControllerParams())
+            consts = _constants(self.params)
+            self.ops = SCALAR
+            self.n = None
+        else:
+            self.params = params
+            consts, self.ops, self.n = _consts, _ops, _n
+        c = consts
+        self.order = c['order']
+        self.discretization = c['discretization']
+        self.compensator = c['compensator']
+        self.kalman_enabled = c['kalman']
+        self.use_td = c['use_td']
+        self._ext = (c['ext_limit_v'] if c['ext_limit'] else None,
+                     c['ext_rate_limit_v'] if c['ext_rate_limit'] else None)
+        self._td_args = (*c['ta'], *c['tb'], c['h'])
+        self._c = (c['h'], c['g1'], c['g2'], c['g3'], c['b0'], c['c1'], c['c2'], c['kp'],
+                   c['kd'], c['w_rate'], c['w_acc'], c['v_max'], c['du_max'], c['q'], c['r'])
+        self._p0 = c['p0']
+        self._step = self._step1 if self.order == 1 else self._step2
+        self.step = self._step  # bind the order-specific tick directly (no dispatch per tick)
+        if self.order == 1:
+            self._eso = eso1_euler_step if self.discretization == 'euler' else eso1_zoh_step
+        else:
+            self._eso = eso2_euler_step if self.discretization == 'euler' else eso2_zoh_step
+        self.reset(0.0, 0.0, 0.0)
+
+    @classmethod
+    def batch(cls, params: Sequence[ControllerParams]) -> LADRC:
+        """N controllers on numpy arrays, one row per parameter set, one code path."""
+        params = [check(p) for p in params]
+        if not params:
+            raise ValueError('LADRC.batch needs at least one parameter set')
+        rows = [_constants(p) for p in params]
+        first = rows[0]
+        for i, row in enumerate(rows[1:], start=1):
+            for key in _STRUCTURAL:
+                if row[key] != first[key]:
+                    raise ValueError(
+                        f'LADRC.batch: parameter set {i} differs from set 0 in {key!r} '
+                        f'({row[key]!r} vs {first[key]!r}); a batch runs one code path, so '
+                        'only numeric values may differ')
+        consts = dict(first)
+        for key, val in first.items():
+            if key in _STRUCTURAL or key == 'discretization':
+                continue
+            if isinstance(val, tuple):
+                consts[key] = tuple(np.array([r[key][j] for r in rows], dtype=float)
+                                    for j in range(len(val)))
+            else:
+                consts[key] = np.array([r[key] for r in rows], dtype=float)
+        return cls(params, _consts=consts, _ops=ARRAY, _n=len(rows))
+
+    # ------------------------------------------------------------------ state
+    def _vec(self, x):
+        """Return a scalar as-is, or broadcast it to a fresh float array of N rows (batch)."""
+        if self.n is None:
+            return float(x)
+        return np.zeros(self.n) + x
+
+    def reset(self, gap_mm, u_prev_mm_s, target_mm, encoder_mm=None) -> None:
+        """Bumpless (re)start at the current gap with the previously applied command.
+
+        TD at rest on the gap (``CompELDTInit(height)``), ESO z1 = gap, gap rate 0,
+        z_{n+1} = −b0·u_prev, Kalman x = gap with P = p0, previous output u_prev.
+        ``encoder_mm`` (optional) is the reference for the next encoder increment.
+        """
+        gap = self._vec(gap_mm)
+        u_prev = self._vec(u_prev_mm_s)
+        zero = self._vec(0.0)
+        b0 = self._c[4]
+        self.target_mm = self._vec(target_mm)
+        self._td = (gap, zero, gap, zero, gap)
+        self.td_x1, self.td_x2, self.td_ddr = gap, zero, zero
+        self.z1 = gap
+        dist = -(b0 * u_prev)
+        if self.order == 1:
+            self.z2, self.z3 = dist, zero
+        else:
+            self.z2, self.z3 = zero, dist
+        self.fused_gap_mm = gap
+        self.kalman_p = self._vec(self._p0)
+        self.kalman_k = zero
+        self._enc_prev = None if encoder_mm is None else self._vec(encoder_mm)
+        self.u = u_prev
+        self.u0 = self.p_term = self.d_term = self.ff_term = zero
+        self.disturbance_term = -(dist / b0)
+        self.u_unlimited = u_prev
+        self.saturated = self.rate_limited = (zero != zero)
+
+    # ------------------------------------------------------------------ tick
+    def step(self, gap_mm, encoder_mm, target_mm):
+        """One 0.5 ms tick; return the velocity command in mm/s (+ = up, widens the gap).
+
+        ``encoder_mm`` is the axis position (+ up); only its increment is used, by the
+        Kalman filter (ignored when the filter is off; may be None then). The instance
+        binds this name to the order-specific implementation at construction.
+        """
+        return self._step(gap_mm, encoder_mm, target_mm)
+
+    def _kalman(self, gap_mm, encoder_mm):
+        # notes §4: the encoder increment predicts the gap, the reading corrects it
+        enc_prev = self._enc_prev
+        dz = 0.0 if (enc_prev is None or encoder_mm is None) else encoder_mm - enc_prev
+        self._enc_prev = encoder_mm
+        y, self.kalman_p, self.kalman_k = kalman_step(self.ops, self.fused_gap_mm,
+                                                      self.kalman_p, gap_mm, dz,
+                                                      self._c[13], self._c[14])
+        return y
+
+    def _step1(self, gap_mm, encoder_mm, target_mm):
+        """Order-1 tick (seed ``CONTROLLER_ORDER 1``): Kalman, ESO, TD, law, limits."""
+        ops = self.ops
+        h, g1, g2, g3, b0, c1, c2, kp, kd, w_rate, w_acc, v_max, du_max, q, r = self._c
+        u_prev = self.u
+        y = self._kalman(gap_mm, encoder_mm) if self.kalman_enabled else gap_mm
+        self.fused_gap_mm = y
+
+        # ESO with the applied previous output (UpdateLADRC: EsoUpdate(nCtrl, height))
+        z1o = self.z1
+        z2o = self.z2
+        z1, z2 = self._eso(ops, z1o, z2o, y, u_prev, g1, g2, b0, h, *self._ext)
+        self.z1 = z1
+        self.z2 = z2
+        if self.compensator:
+            # paper eq. 22, measurement and estimate of the same instant
+            if self.discretization == 'euler':
+                z1, z2 = compensate1(ops, z1o, z2o, y - z1o, c1)
+            else:
+                z1, z2 = compensate1(ops, z1, z2, y - z1, c1)
+
+        # compound TD on the target (CompELDTUpdate): TDA, then TDB fed TDA's increment
+        a1, a2, b1, b2, v_prev = self._td
+        ak1, ak2, ar, aal, bk1, bk2, br, bal, _ = self._td_args
+        na1, na2 = td_step_firmware(ops, a1, a2, target_mm, target_mm - v_prev,
+                                    ak1, ak2, ar, aal, h)
+        b1, b2 = td_step_firmware(ops, b1, b2, target_mm, na1 - a1, bk1, bk2, br, bal, h)
+        self._td = (na1, na2, b1, b2, target_mm)
+        self.td_x1 = b1
+        self.td_x2 = b2
+        self.target_mm = target_mm
+        if self.use_td:
+            p_term, ff, u0, u = law1(ops, b1, b2, z1, z2, kp, b0, w_rate)
+        else:  # form 2: the raw target, no reference derivative
+            p_term, ff, u0, u = law1(ops, target_mm, 0.0, z1, z2, kp, b0, w_rate)
+        self.p_term = p_term
+        self.ff_term = ff
+        self.u0 = u0
+        self.u_unlimited = u
+        self.disturbance_term = -(z2 / b0)
+
+        # saturation, then the acceleration limit against the applied previous output
+        u, self.saturated, self.rate_limited = apply_limits(ops, u, u_prev, v_max, du_max)
+        self.u = u
+        return u
+
+    def _step2(self, gap_mm, encoder_mm, target_mm):
+        """Order-2 tick: as :meth:`_step1` with z = (gap, gap rate, disturbance), r̈ = Δṙ/h."""
+        ops = self.ops
+        h, g1, g2, g3, b0, c1, c2, kp, kd, w_rate, w_acc, v_max, du_max, q, r = self._c
+        u_prev = self.u
+        y = self._kalman(gap_mm, encoder_mm) if self.kalman_enabled else gap_mm
+        self.fused_gap_mm = y
+
+        z1o, z2o, z3o = self.z1, self.z2, self.z3
+        z1, z2, z3 = self._eso(ops, z1o, z2o, z3o, y, u_prev, g1, g2, g3, b0, h, *self._ext)
+        self.z1, self.z2, self.z3 = z1, z2, z3
+        if self.compensator:
+            if self.discretization == 'euler':
+                z1, z2, z3 = compensate2(ops, z1o, z2o, z3o, y - z1o, c1, c2)
+            else:
+                z1, z2, z3 = compensate2(ops, z1, z2, z3, y - z1, c1, c2)
+
+        a1, a2, b1, b2o, v_prev = self._td
+        ak1, ak2, ar, aal, bk1, bk2, br, bal, _ = self._td_args
+        na1, na2 = td_step_firmware(ops, a1, a2, target_mm, target_mm - v_prev,
+                                    ak1, ak2, ar, aal, h)
+        b1, b2 = td_step_firmware(ops, b1, b2o, target_mm, na1 - a1, bk1, bk2, br, bal, h)
+        self._td = (na1, na2, b1, b2, target_mm)
+        ddr = (b2 - b2o) / h
+        self.td_x1, self.td_x2, self.td_ddr = b1, b2, ddr
+        self.target_mm = target_mm
+        if self.use_td:
+            p_term, d_term, ff, u0, u = law2(ops, b1, b2, ddr, z1, z2, z3, kp, kd, b0,
+                                             w_rate, w_acc)
+        else:
+            p_term, d_term, ff, u0, u = law2(ops, target_mm, 0.0, 0.0, z1, z2, z3, kp, kd, b0,
+                                             w_rate, w_acc)
+        self.p_term, self.d_term, self.ff_term = p_term, d_term, ff
+        self.u0, self.u_unlimited = u0, u
+        self.disturbance_term = -(z3 / b0)
+
+        u, self.saturated, self.rate_limited = apply_limits(ops, u, u_prev, v_max, du_max)
+        self.u = u
+        return u

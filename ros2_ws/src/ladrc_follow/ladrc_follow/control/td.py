@@ -1,0 +1,194 @@
+"""Equivalent-linear and compound tracking differentiators (notes §2, ``ELDT.c``).
+
+Continuous form (notes §2.1, "General-Forward-Form")::
+
+    x1' = x2
+    x2' = R²·(−k1·(x1 − v) − k2·x2/R) + α·v'
+
+so x1/v = (α s + k1 R²) / (s² + k2 R s + k1 R²): natural frequency ωn = R·√k1,
+damping ξ = k2 / (2√k1); with α = k2·R a ramp is tracked without lag.
+
+Mapping of the firmware's integers (``ELDTrackerCalc``, ``SAMPLE_PERIOD 2000``), line by line:
+
+* ``nTracker = (nTracker*2000 + nDiff)/2000`` → x1 += h·x2 with h = 1/2000 s = 0.5 ms, so
+  ``nDiff`` is x2 in UnitP **per second**.
+* ``-k1*err_1/10`` → the float k1 is ``k1_int / 10``.
+* ``k2*nDiff/10/R`` → k2·x2/R with the float k2 ``k2_int / 10`` and R = ``R_int`` in 1/s.
+* ``(…)*R*R/2000`` → h·R²·(…).
+* ``+ a*(nFowardIn_ − nForwardIn)`` is **commented out**: the firmware's Fc is unused, so its
+  "compound" TD is just TDB. In the notes' MATLAB sets the fourth number is α itself
+  (``TDA: 2.2,1.3,30,15`` for the C ints 22,13,30,15): α = ``Fc_int`` in 1/s, not Fc/10
+  (α = 1.5 would be negligible next to k2·R = 39; α = 15 removes 38 % of the ramp lag).
+
+The TD is linear and homogeneous, so the size of UnitP does not enter: x1 in mm and
+x2 in mm/s once the reference is in mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from .ops import SCALAR
+
+SAMPLE_PERIOD_S = 1.0 / 2000.0
+"""The firmware's ``SAMPLE_PERIOD 2000`` (ticks per second): h = 0.5 ms."""
+
+
+@dataclass(frozen=True)
+class TDParams:
+    """Parameters of one equivalent-linear TD (notes §2.1).
+
+    ``k1`` and ``k2`` are dimensionless, ``r_per_s`` is the speed factor R in 1/s and
+    ``alpha`` the feed-forward coefficient α in 1/s (α·Δv is added to x2 each step).
+    """
+
+    k1: float
+    k2: float
+    r_per_s: float
+    alpha: float = 0.0
+
+    @property
+    def natural_frequency_rad_s(self) -> float:
+        """ωn = R·√k1 of x1/v (notes §2.1)."""
+        return self.r_per_s * math.sqrt(self.k1)
+
+    @property
+    def damping(self) -> float:
+        """ξ = k2 / (2√k1) of x1/v (notes §2.1)."""
+        return self.k2 / (2.0 * math.sqrt(self.k1))
+
+    def problems(self, h_s: float | None = None) -> list[str]:
+        """Readable reasons why these parameters cannot run; empty when valid.
+
+        With ``h_s`` the discrete (firmware-order) step is also checked for stability.
+        """
+        out = []
+        for name in ('k1', 'k2', 'r_per_s', 'alpha'):
+            val = getattr(self, name)
+            if not isinstance(val, (int, float)) or not math.isfinite(val):
+                out.append(f'td.{name} = {val!r}: must be a finite number')
+        if out:
+            return out
+        if self.k1 <= 0.0:
+            out.append(f'td.k1 = {self.k1}: must be > 0 (it is the position stiffness)')
+        if self.k2 <= 0.0:
+            out.append(f'td.k2 = {self.k2}: must be > 0, otherwise x1 oscillates without'
+                       ' damping')
+        if self.r_per_s <= 0.0:
+            out.append(f'td.r_per_s = {self.r_per_s}: the speed factor R must be > 0')
+        if self.alpha < 0.0:
+            out.append(f'td.alpha = {self.alpha}: the feed-forward coefficient must be >= 0')
+        if not out and h_s is not None:
+            if not (h_s > 0.0):
+                out.append(f'h_s = {h_s}: the sample period must be > 0')
+            else:
+                rho = max(abs(np.linalg.eigvals(td_discrete_matrix(self, h_s))))
+                if rho >= 1.0:
+                    out.append(f'td: ωn = {self.natural_frequency_rad_s:.4g} rad/s is unstable'
+                               f' at h = {h_s} s (spectral radius {rho:.4f} >= 1); lower R')
+        return out
+
+
+def td_params_from_wn_xi(wn_rad_s: float, xi: float, k1: float = 1.0,
+                         alpha: float = 0.0) -> TDParams:
+    """TD parameters with natural frequency ``wn_rad_s`` and damping ``xi`` (for a given k1).
+
+    Inverts ωn = R√k1, ξ = k2/(2√k1): R = ωn/√k1, k2 = 2ξ√k1.
+    """
+    if not (wn_rad_s > 0.0 and xi > 0.0 and k1 > 0.0):
+        raise ValueError(f'td_params_from_wn_xi: need wn_rad_s > 0, xi > 0, k1 > 0; got'
+                         f' {wn_rad_s}, {xi}, {k1}')
+    root = math.sqrt(k1)
+    return TDParams(k1=k1, k2=2.0 * xi * root, r_per_s=wn_rad_s / root, alpha=alpha)
+
+
+def td_step(ops, x1, x2, v, dv, k1, k2, r, alpha, h_s):
+    """One step of the notes' discrete forward form (§2.1), both updates from step k.
+
+    x1(k+1) = x1 + h·x2;  x2(k+1) = x2 + h·R²·(−k1(x1 − v) − k2·x2/R) + α·dv,
+    ``dv`` = the feed-forward input's increment this step. This is explicit Euler;
+    :func:`td_step_firmware` is the firmware's order.
+    """
+    f = -k1 * (x1 - v) - k2 * x2 / r
+    return x1 + h_s * x2, x2 + h_s * r * r * f + alpha * dv
+
+
+def td_step_firmware(ops, x1, x2, v, dv, k1, k2, r, alpha, h_s):
+    """One step in ``ELDTrackerCalc``'s order: x1 first, then x2 from the **new** x1.
+
+    This is semi-implicit (symplectic) Euler. It is the default of the compound TD
+    because (1) it is what ran on the machine and was measured, and (2) it is the
+    better discretization: the discrete determinant is 1 − h·k2·R, independent of
+    k1, so it stays stable for larger ωn·h than explicit Euler (whose determinant
+    1 − h·k2·R + h²·k1·R² exceeds 1 when lightly damped). Both agree to O(h).
+    The firmware's α term is commented out; here it is applied as the notes write it.
+    """
+    x1n = x1 + h_s * x2
+    f = -k1 * (x1n - v) - k2 * x2 / r
+    return x1n, x2 + h_s * r * r * f + alpha * dv
+
+
+def td_discrete_matrix(p: TDParams, h_s: float, firmware_order: bool = True) -> np.ndarray:
+    """State matrix of one step (v = 0), for stability checks."""
+    a = h_s * p.r_per_s ** 2 * p.k1
+    b = h_s * p.r_per_s * p.k2
+    if firmware_order:
+        return np.array([[1.0, h_s], [-a, 1.0 - b - a * h_s]])
+    return np.array([[1.0, h_s], [-a, 1.0 - b]])
+
+
+# Seed defaults (CompELDTInit): ints (k1, k2, R, Fc) = (22, 13, 30, 15) and (12, 40, 100, 0).
+TDA_FIRMWARE = TDParams(k1=2.2, k2=1.3, r_per_s=30.0, alpha=15.0)
+TDB_FIRMWARE = TDParams(k1=1.2, k2=4.0, r_per_s=100.0, alpha=0.0)
+# The notes' MATLAB simulation set "2019-12-1" (§2.3): TDA 2.2,1.3,30,15; TDB 2.2,2.8,30,18.
+TDA_SIM_2019 = TDParams(k1=2.2, k2=1.3, r_per_s=30.0, alpha=15.0)
+TDB_SIM_2019 = TDParams(k1=2.2, k2=2.8, r_per_s=30.0, alpha=18.0)
+
+
+def compound_td_step(ops, state, v, a_k1, a_k2, a_r, a_alpha, b_k1, b_k2, b_r, b_alpha, h_s,
+                     firmware_order=True):
+    """One step of the compound TD (``CompELDTUpdate``).
+
+    ``state = (a_x1, a_x2, b_x1, b_x2, v_prev)``. TDA tracks ``v`` with its own
+    increment ``v − v_prev`` as feed-forward; TDB tracks ``v`` with TDA's output
+    increment as feed-forward (firmware: ``ELDTrackerCalc(B, v, A->nTracker)`` after A
+    was updated). Returns the new state; TDB's ``(b_x1, b_x2)`` is the TD output.
+    """
+    step = td_step_firmware if firmware_order else td_step
+    a_x1, a_x2, b_x1, b_x2, v_prev = state
+    na_x1, na_x2 = step(ops, a_x1, a_x2, v, v - v_prev, a_k1, a_k2, a_r, a_alpha, h_s)
+    nb_x1, nb_x2 = step(ops, b_x1, b_x2, v, na_x1 - a_x1, b_k1, b_k2, b_r, b_alpha, h_s)
+    return na_x1, na_x2, nb_x1, nb_x2, v
+
+
+class CompoundTD:
+    """Convenience wrapper of :func:`compound_td_step` (scalar, or batch with ``ARRAY`` ops).
+
+    Parameters may be :class:`TDParams` of floats, or of numpy arrays for a batch.
+    """
+
+    def __init__(self, pa: TDParams = TDA_FIRMWARE, pb: TDParams = TDB_FIRMWARE,
+                 h_s: float = SAMPLE_PERIOD_S, ops=SCALAR, firmware_order: bool = True):
+        if not (h_s > 0.0):
+            raise ValueError(f'CompoundTD: h_s = {h_s} must be > 0 (seconds)')
+        self.pa, self.pb, self.h_s, self.ops = pa, pb, h_s, ops
+        self.firmware_order = firmware_order
+        self._args = (pa.k1, pa.k2, pa.r_per_s, pa.alpha, pb.k1, pb.k2, pb.r_per_s, pb.alpha,
+                      h_s)
+        self.state = None
+
+    def reset(self, v0) -> None:
+        """Start both TDs at rest on ``v0`` (``ELDTrackerInit``: x1 = v0, x2 = 0, ff = v0)."""
+        zero = v0 * 0.0
+        self.state = (v0 + zero, zero, v0 + zero, zero, v0 + zero)
+
+    def step(self, v):
+        """Advance one sample with reference ``v``; return TDB's ``(x1, x2)``."""
+        if self.state is None:
+            self.reset(v)
+        self.state = compound_td_step(self.ops, self.state, v, *self._args,
+                                      firmware_order=self.firmware_order)
+        return self.state[2], self.state[3]
