@@ -7,6 +7,7 @@ from ladrc_follow.control.params import (
     EXTRA_VALIDATORS,
     ControllerParams,
     ESOParams,
+    FollowParams,
     LawParams,
     LimitParams,
     ParameterError,
@@ -43,7 +44,7 @@ def test_yaml_round_trip(tmp_path, ros_node):
     p = ControllerParams(eso=ESOParams(order=2, discretization='zoh', gains='bandwidth',
                                        w0_rad_s=200.0, b0=125.0, compensator=True),
                          law=LawParams(form=1, gains='bandwidth', wc_rad_s=30.0),
-                         follow={'lock_time_s': 0.2})
+                         follow=FollowParams(locking_timeout_s=0.2, controller='pid'))
     path = tmp_path / 'p.yaml'
     path.write_text(dump_params(p, ros_node=ros_node))
     assert load_params(path) == p
@@ -132,11 +133,12 @@ def test_unknown_and_mistyped_keys():
 
 def test_extra_validators_hook():
     def no_follow_x(p):
-        return ['follow.x must be set'] if 'x' not in p.follow else []
+        return ['follow.retarget_threshold_mm must be 2'] if (
+            p.follow.retarget_threshold_mm != 2.0) else []
     EXTRA_VALIDATORS.append(no_follow_x)
     try:
-        assert 'follow.x must be set' in validate(ControllerParams())
-        assert validate(ControllerParams(follow={'x': 1})) == []
+        assert 'follow.retarget_threshold_mm must be 2' in validate(ControllerParams())
+        assert validate(ControllerParams(follow=FollowParams(retarget_threshold_mm=2.0))) == []
     finally:
         EXTRA_VALIDATORS.remove(no_follow_x)
 
@@ -148,3 +150,17 @@ def test_load_errors(tmp_path):
     bad.write_text('eso: [1, 2\n')
     with pytest.raises(ParameterError, match='not valid YAML'):
         load_params(bad)
+
+
+def test_follow_section_is_typed_and_validated_with_the_set():
+    p = params_from_dict({'follow': {'controller': 'pid', 'collision_gap_mm': 0.1}})
+    assert p.follow == FollowParams(controller='pid', collision_gap_mm=0.1)
+    with pytest.raises(ParameterError) as err:
+        params_from_dict({'follow': {'collision_gap_mm': 0.5, 'min_target_gap_mm': 0.4}})
+    assert 'collision_gap_mm (0.5) must be below min_target_gap_mm (0.4)' in str(err.value)
+    with pytest.raises(ParameterError) as err:
+        params_from_dict({'follow': {'stale_timeout_s': 0.0001}})
+    assert 'stale_timeout_s' in str(err.value)
+    with pytest.raises(ParameterError) as err:
+        params_from_dict({'follow': {'controler': 'pid'}})
+    assert "unknown key 'follow.controler'" in str(err.value)

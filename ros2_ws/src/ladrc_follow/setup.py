@@ -22,6 +22,10 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'follow_node = ladrc_follow.follow_node:main',
+            'recorder = ladrc_follow.recorder_node:main',
+            'bringup = ladrc_follow.bringup:main',
+            'ladrc = ladrc_follow.cli:main',
         ],
     },
 )

@@ -26,7 +26,7 @@ def msg_dir() -> Path:
         share = Path(get_package_share_directory(PACKAGE)) / 'msg'
         if share.is_dir():
             return share
-    except (ImportError, LookupError, ValueError):
+    except (ImportError, LookupError, ValueError, OSError):
         pass
     env_root = os.environ.get('LADRC_ROOT')
     roots = [Path(env_root)] if env_root else []
@@ -34,7 +34,6 @@ def msg_dir() -> Path:
     for root in roots:
         src = root / 'ros2_ws' / 'src' / PACKAGE / 'msg'
         if src.is_dir():
-            src = root / 'ros2_ws' / 'src' / PACKAGE / 'msg'
             return src
     raise FileNotFoundError(f'cannot find the {PACKAGE} .msg files (is the workspace built?)')
 

@@ -12,10 +12,9 @@ optional features are switched by a mode string or a bool and "0 = off"
 
 Validation looks at the whole set (:func:`validate`) and reports every reason
 at once; :func:`check` raises :class:`ParameterError` carrying them all.
-Unknown keys are errors naming the key. The ``follow`` section is a free dict
-for the follow state machine (which can register its checks in
-:data:`EXTRA_VALIDATORS`); a later dataclass can replace it without touching the
-loader, which is generic over dataclass fields.
+Unknown keys are errors naming the key. The ``follow`` section is
+:class:`~.follow_params.FollowParams` (the follow state machine's), validated with the rest
+of the set; other modules can add whole-set checks to :data:`EXTRA_VALIDATORS`.
 """
 
 from __future__ import annotations
@@ -28,6 +27,7 @@ from typing import Any, Callable
 import yaml
 
 from .eso import bandwidth_gains, euler_is_stable, zoh_gains
+from .follow_params import FollowParams, follow_problems
 from .interp import InterpParams
 from .kalman import KalmanParams
 from .pid import PIDParams
@@ -37,7 +37,7 @@ __all__ = [
     'ControllerParams', 'ESOParams', 'KalmanConfig', 'LawParams', 'LimitParams', 'PIDParams',
     'InterpParams', 'TDParams', 'ParameterError', 'EXTRA_VALIDATORS', 'load_params',
     'params_from_dict', 'params_to_dict', 'dump_params', 'validate', 'check', 'eso_gains',
-    'law_gains', 'DEFAULT_NODE_NAME',
+    'law_gains', 'DEFAULT_NODE_NAME', 'FollowParams',
 ]
 
 DEFAULT_NODE_NAME = 'ladrc_follow'
@@ -135,7 +135,7 @@ class ControllerParams:
     limits: LimitParams = field(default_factory=LimitParams)
     pid: PIDParams = field(default_factory=PIDParams)
     interp: InterpParams = field(default_factory=InterpParams)
-    follow: dict = field(default_factory=dict)
+    follow: FollowParams = field(default_factory=FollowParams)
 
     def replace(self, **changes: Any) -> ControllerParams:
         """Return a copy with sections or values replaced (dataclasses.replace)."""
@@ -324,8 +324,6 @@ def dump_params(p: ControllerParams, ros_node: str | None = DEFAULT_NODE_NAME) -
     """YAML text of ``p``; in the ROS 2 layout under ``ros_node`` unless it is None."""
     d = params_to_dict(p)
     if ros_node is not None:
-        if not d.get('follow'):
-            d.pop('follow', None)  # an empty map is not a valid ROS parameter
         d = {ros_node: {'ros__parameters': d}}
     return yaml.safe_dump(d, sort_keys=False, default_flow_style=False)
 
@@ -476,8 +474,12 @@ def validate(p: ControllerParams) -> list[str]:
     out += _limit_problems(p)
     out += p.pid.problems()
     out += p.interp.problems()
-    if not isinstance(p.follow, dict):
-        out.append(f'follow must be a mapping, got {type(p.follow).__name__}')
+    if isinstance(p.follow, FollowParams):
+        out += p.follow.problems()
+        if not p.follow.problems():
+            out += follow_problems(p)
+    else:
+        out.append(f'follow must be a FollowParams section, got {type(p.follow).__name__}')
     for extra in EXTRA_VALIDATORS:
         out += extra(p)
     return out

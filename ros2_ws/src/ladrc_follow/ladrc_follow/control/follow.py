@@ -1,0 +1,833 @@
+"""The follow state machine (notes §3.5 ``Follow_OnStep``), completed where the seed is a fragment.
+
+States (values = ``ladrc_msgs/FollowStatus`` ``STATE_*``)::
+
+    IDLE --start_follow--> LOCKING --inputs ok--> PREINTERPOLATE --seed hand-over rule--> PID
+    PID --followed (and LADRC configured, not machining)--> LADRC
+    PID/LADRC --target change > retarget_threshold_mm / gradient follow--> PREINTERPOLATE
+    any following state --fault--> FAULT --reset_fault--> IDLE;  stop_follow --> IDLE
+
+* LOCKING (seed ``Locking_OnStep``, not in the notes): command 0 until the inputs are fresh and
+  valid and the drive is enabled and unfaulted, then initialise and approach.
+* PREINTERPOLATE (seed): every tick ``Interp_GoDistance(target − gap − cached length)``; the
+  interpolator's velocity is the command; the PID runs alongside from the interpolator's
+  velocity (``FollowPID_SetPreOutUnitV``) and takes over when the seed's rule holds
+  (``nDir·nNextAcc < 0 && |nNextAcc| ≤ acc && |err| ≤ 1 mm``) or, so the phase cannot get
+  stuck, when the interpolation has finished within the window.
+* PID (seed ``FS_PID_CONTROL``): PID follow with feed-forward; "followed" = in position for the
+  hold time. The seed re-initialises the LADRC every PID tick from the PID output and the
+  reading (``InitLADRC(height, height, pidOut)``); :meth:`LADRC.reset` is memoryless, so this
+  module re-initialises it once, at the switch, from the previous tick's reading and output —
+  the identical state, without paying a reset on every PID tick.
+* LADRC: ``UpdateLADRC`` once followed and (seed) not machining; ``ladrc_while_machining``
+  lifts the machining restriction.
+
+Every output passes one final limiter (±v_max, ±a_max·h against the previously applied
+command, :func:`law.apply_limits`), so no hand-over steps the velocity by more than a_max·h.
+Invalid or stale data never reaches PID/LADRC: the checks run before either is stepped.
+See docs/follow-state-machine.md for the decisions taken where the seed is silent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from enum import IntEnum
+import math
+import numbers
+from typing import Any, NamedTuple
+
+from .follow_params import FollowParams, follow_params_of, follow_problems
+from .interp import Interpolator, InterpParams
+from .ladrc import LADRC
+from .params import ControllerParams
+from .pid import FollowPID
+
+__all__ = [
+    'FollowState', 'FollowParams', 'FollowController', 'TickInput', 'follow_params_of',
+    'follow_problems', 'GAP_STATUS_OK', 'GAP_STATUS_OUT_OF_RANGE', 'GAP_STATUS_COLLISION',
+    'GAP_STATUS_FAULT', 'LIMIT_VELOCITY', 'LIMIT_ACCELERATION', 'LIMIT_ESO_STATE',
+    'INTERNALS_KEYS', 'COMMANDS',
+]
+
+
+class FollowState(IntEnum):
+    """Follow states; the values are ``ladrc_msgs/FollowStatus`` ``STATE_*``."""
+
+    IDLE = 0
+    LOCKING = 1
+    PREINTERPOLATE = 2
+    PID = 3
+    LADRC = 4
+    FAULT = 5
+
+
+_IDLE, _LOCKING, _PREINTERP, _PID, _LADRC, _FAULT = (int(s) for s in FollowState)
+
+# ladrc_msgs/CapacitiveHeight STATUS_*
+GAP_STATUS_OK = 0
+GAP_STATUS_OUT_OF_RANGE = 1
+GAP_STATUS_COLLISION = 2
+GAP_STATUS_FAULT = 3
+
+# ladrc_msgs/FollowStatus LIMIT_* bits
+LIMIT_VELOCITY = 1
+LIMIT_ACCELERATION = 2
+LIMIT_ESO_STATE = 4
+
+# internals() keys = these ladrc_msgs/FollowStatus fields
+INTERNALS_KEYS = (
+    'state', 'followed', 'machining', 'fault_reason', 'target_gap_mm', 'fused_gap_mm',
+    'td_x1_mm', 'td_x2_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3', 'u0_mm_s', 'p_term_mm_s',
+    'd_term_mm_s', 'disturbance_term_mm_s', 'u_unlimited_mm_s', 'velocity_mm_s',
+    'limit_flags',
+)
+
+# command name -> argument names (required first); defaults in FollowController.command
+COMMANDS = {
+    'start_follow': ('target_gap_mm',),
+    'stop_follow': (),
+    'set_target': ('target_gap_mm',),
+    'machining': ('on',),
+    'height_compensation': ('offset_mm', 'delay_s'),
+    'gradient_follow': ('target_gap_mm', 'delay_s', 'velocity_mm_s', 'accel_mm_s2'),
+    'reset_fault': (),
+}
+
+
+class TickInput(NamedTuple):
+    """Inputs of one controller tick (the sim runner's ``TickInput`` plus ``gap_status``).
+
+    ``gap_status`` is ``CapacitiveHeight.status`` (``GAP_STATUS_*``); it is the last field
+    with a default, so an 8-field tuple (the sim runner's) is accepted too: a status of 0
+    with ``gap_valid`` false means "not reported" and the cause is inferred from the reading
+    (at or below ``collision_gap_mm``: collision; otherwise out of range / miss-panel).
+    """
+
+    t_s: float
+    gap_mm: float
+    gap_valid: bool
+    gap_stamp_s: float
+    encoder_mm: float
+    encoder_stamp_s: float
+    drive_enabled: bool
+    drive_fault: bool
+    gap_status: int = 0
+
+
+def _real(x: Any) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _ticks(t_s: float, h_s: float) -> int:
+    return max(1, int(round(t_s / h_s)))
+
+
+class _Build(NamedTuple):
+    params: ControllerParams
+    follow: FollowParams
+    ladrc: LADRC | None
+    pid: FollowPID
+    interp: Interpolator
+
+
+def _build(params: ControllerParams | None, follow: FollowParams | None,
+           mode: str | None = None) -> _Build:
+    params = params if params is not None else ControllerParams()
+    fp = follow if follow is not None else follow_params_of(params)
+    if mode is not None:
+        fp = replace(fp, controller=mode)
+    problems = fp.problems() or follow_problems(replace(params, follow=fp))
+    if problems:
+        raise ValueError('invalid follow parameters: ' + '; '.join(problems))
+    ladrc = LADRC(params)  # validates the whole set (ParameterError is a ValueError)
+    return _Build(params, fp, ladrc, FollowPID(params.pid, params.h_s),
+                  Interpolator(params.interp, params.h_s))
+
+
+class FollowController:
+    """Follow state machine driving PID / LADRC; ``step(tick) -> velocity_mm_s``.
+
+    ``command(name, **kwargs) -> (accepted, message)`` queues a follow command (applied at the
+    start of the next :meth:`step`), ``set_params`` queues a parameter set likewise, so a
+    replay that re-issues the same commands before the same ticks reproduces the commands
+    bit for bit. ``follow`` overrides ``params.follow``; ``mode`` ('ladrc' | 'pid') overrides
+    ``follow.controller`` (also for later :meth:`set_params`).
+    """
+
+    def __init__(self, params: ControllerParams | None = None,
+                 follow: FollowParams | None = None, *, mode: str | None = None) -> None:
+        self._pending: list[tuple[str, dict]] = []
+        self._pending_build: _Build | None = None
+        self._mode = mode  # 'ladrc' | 'pid' overrides follow.controller (CLI --controller)
+        self._install(_build(params, follow, mode))
+        self._state = _IDLE
+        self._tick = -1
+        self._u = 0.0            # last applied command (mm/s)
+        self._u_unlim = 0.0
+        self._flags = 0
+        self._src = 0            # source of the command: 0 ramp, 1 interp, 2 PID, 3 LADRC
+        self._target = math.nan  # commanded target (without compensation)
+        self._offset = 0.0       # active height compensation
+        self._target_eff = math.nan
+        self._machining = False
+        self._followed = False
+        self._fault_reason = ''
+        self._comp: list[tuple[int, float]] = []
+        self._gradients: list[tuple[int, float, float, float]] = []
+        self._capped = False
+        self._retracting = False
+        self._retract: Interpolator | None = None
+        self._last_gap = math.nan
+        self._last_enc = math.nan
+        self._drive_bad = False
+        self._lock_ticks = 0
+        self._lock_ok = False
+        self._invalid_ticks = 0
+        self._miss_ticks = 0
+        self._inpos_ticks = 0
+        self._approach_ticks = 0
+        self._dir = 1.0
+        self._enc0 = 0.0
+        self._surf_ref = 0.0
+
+    # ------------------------------------------------------------------ parameters
+    def _install(self, b: _Build) -> None:
+        p, f = b.params, b.follow
+        h = p.h_s
+        self.params, self.follow_params = p, f
+        self._ladrc = b.ladrc
+        self._ladrc_step = b.ladrc.step
+        self._pid = b.pid
+        self._interp_default = b.interp
+        self._interp = b.interp
+        self._h = h
+        self._v_max = p.limits.v_max_mm_s
+        self._du_max = p.limits.a_max_mm_s2 * h
+        self._vlim, self._dulim = self._v_max, self._du_max
+        self._pid_du = p.pid.a_max_mm_s2 * h
+        self._use_ladrc = f.controller == 'ladrc'
+        self._lag_comp = f.approach_lag_compensation
+        self._ladrc_machining = f.ladrc_while_machining
+        self._stale_s = f.stale_timeout_s
+        self._coll = f.collision_gap_mm
+        self._window = f.handover_window_mm
+        self._retarget = f.retarget_threshold_mm
+        self._tol = p.pid.followed_tol_mm
+        self._wide_tol = f.followed_wide_tol_mm
+        self._hold_ticks = max(1, int(round(p.pid.followed_hold_s / h)))
+        self._widen_ticks = _ticks(f.followed_widen_s, h)
+        self._timeout_ticks = _ticks(f.followed_timeout_s, h)
+        self._lock_max = _ticks(f.locking_timeout_s, h)
+        self._invalid_max = _ticks(f.invalid_timeout_s, h)
+        self._miss_max = _ticks(f.miss_panel_s, h)
+        self._edge = f.edge_drop_mm
+        self._c_edge = h / (f.edge_ref_tau_s + h)  # backward-Euler low-pass, as pid.py
+        ext = p.eso.disturbance_limit
+        self._ext_limit = ext if ext > 0.0 else math.inf
+
+    def set_params(self, params: ControllerParams, follow: FollowParams | None = None) -> None:
+        """Queue a new parameter set; it takes effect at the next tick boundary, bumplessly.
+
+        Raises ValueError (``ParameterError``) naming every problem if the set is invalid;
+        the running set is then unchanged.
+        """
+        self._pending_build = _build(params, follow, self._mode)
+
+    def _swap_params(self) -> None:
+        b, self._pending_build = self._pending_build, None
+        old_interp, custom = self._interp, self._interp is not self._interp_default
+        self._install(b)
+        st, u = self._state, self._u
+        gap, enc, target = self._last_gap, self._last_enc, self._target_eff
+        if custom:
+            self._interp = old_interp  # a gradient move keeps its own v/a
+        elif st == _PREINTERP:
+            self._interp.reset(u)
+            self._interp.go_distance(old_interp.cached_length_mm)
+        if st in (_PREINTERP, _PID, _LADRC) and math.isfinite(gap):
+            enc_ = enc if math.isfinite(enc) else None
+            self._pid.reset(gap, target, u, enc_)
+            if st == _PID:
+                self._pid_modes()
+            self._ladrc.reset(gap, u, target, enc_)
+        if self._capped:
+            self._vlim, self._dulim = self._cap
+            self._vlim = min(self._vlim, self._v_max)
+            self._dulim = min(self._dulim, self._du_max)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def state(self) -> FollowState:
+        """Current state."""
+        return FollowState(self._state)
+
+    @property
+    def followed(self) -> bool:
+        """In position within tolerance for the hold time since the last approach (随动到位)."""
+        return self._followed
+
+    @property
+    def fault_reason(self) -> str:
+        """Why the controller is in FAULT ('' otherwise)."""
+        return self._fault_reason
+
+    @property
+    def target_gap_mm(self) -> float:
+        """Follow target incl. the active height compensation (NaN when not following)."""
+        return self._target_eff
+
+    @property
+    def machining(self) -> bool:
+        """Machining flag as last commanded."""
+        return self._machining
+
+    @property
+    def velocity_mm_s(self) -> float:
+        """The command of the last tick."""
+        return self._u
+
+    @property
+    def enable(self) -> bool:
+        """Drive enable bit: following, retracting, or still ramping a non-zero command down."""
+        return _PREINTERP <= self._state <= _LADRC or self._retracting or self._u != 0.0
+
+    # ------------------------------------------------------------------ commands
+    def _projected_state(self) -> int:
+        s = self._state
+        for name, _ in self._pending:
+            if name == 'stop_follow' and s != _FAULT:
+                s = _IDLE
+            elif name == 'start_follow' and s == _IDLE:
+                s = _LOCKING
+            elif name == 'reset_fault' and s == _FAULT:
+                s = _IDLE
+        return s
+
+    def _check_target(self, name: str, target: Any, offset: float) -> str:
+        f = self.follow_params
+        if not _real(target):
+            return f'{name}: target_gap_mm must be a finite number, got {target!r}'
+        eff = target + offset
+        if not f.min_target_gap_mm <= eff <= f.max_target_gap_mm:
+            extra = f' (target {target:g} + compensation {offset:g})' if offset else ''
+            return (f'{name}: target gap {eff:g} mm{extra} outside the allowed '
+                    f'{f.min_target_gap_mm:g}..{f.max_target_gap_mm:g} mm')
+        return ''
+
+    def command(self, name: str, **kwargs: Any) -> tuple[bool, str]:
+        """Queue a follow command for the next tick; return ``(accepted, message)``.
+
+        ``start_follow(target_gap_mm)``, ``stop_follow()``, ``set_target(target_gap_mm)``,
+        ``machining(on)``, ``height_compensation(offset_mm, delay_s=0)``,
+        ``gradient_follow(target_gap_mm, delay_s, velocity_mm_s=0, accel_mm_s2=0)``,
+        ``reset_fault()``. A rejected command changes nothing; the message says why.
+        """
+        if name not in COMMANDS:
+            return False, f'unknown command {name!r} (known: {", ".join(COMMANDS)})'
+        allowed = COMMANDS[name]
+        extra = sorted(set(kwargs) - set(allowed))
+        if extra:
+            return False, (f'{name}: unknown argument(s) {", ".join(extra)} '
+                           f'(allowed: {", ".join(allowed) or "none"})')
+        st = self._projected_state()
+        following = _LOCKING <= st <= _LADRC
+        f = self.follow_params
+        if name == 'start_follow':
+            if 'target_gap_mm' not in kwargs:
+                return False, 'start_follow: missing target_gap_mm'
+            why = self._check_target(name, kwargs['target_gap_mm'], 0.0)
+            if why:
+                return False, why
+            if st == _FAULT:
+                return False, f'start_follow: in FAULT ({self._fault_reason}); reset_fault first'
+            msg = ('follow starts (LOCKING)' if st == _IDLE else
+                   'already following: treated as set_target')
+        elif name == 'stop_follow':
+            msg = ('follow stops: IDLE, command ramps to 0' if st != _FAULT else
+                   'not following; the FAULT stays latched until reset_fault')
+        elif name == 'set_target':
+            if 'target_gap_mm' not in kwargs:
+                return False, 'set_target: missing target_gap_mm'
+            if not following:
+                return False, (f'set_target: not following ({FollowState(st).name}); '
+                               'use start_follow')
+            why = self._check_target(name, kwargs['target_gap_mm'], self._offset)
+            if why:
+                return False, why
+            msg = (f'target {kwargs["target_gap_mm"]:g} mm (a change over '
+                   f'{f.retarget_threshold_mm:g} mm re-interpolates)')
+        elif name == 'machining':
+            on = kwargs.get('on')
+            if on not in (True, False):
+                return False, f'machining: on must be true or false, got {on!r}'
+            kwargs = {'on': bool(on)}
+            msg = f'machining {"on" if on else "off"}'
+        elif name == 'height_compensation':
+            off = kwargs.get('offset_mm')
+            delay = kwargs.setdefault('delay_s', 0.0)
+            if not _real(off) or abs(off) > f.max_compensation_mm:
+                return False, (f'height_compensation: offset_mm must be a finite number within '
+                               f'±{f.max_compensation_mm:g} mm, got {off!r}')
+            if not _real(delay) or delay < 0.0:
+                return False, f'height_compensation: delay_s must be >= 0, got {delay!r}'
+            if st not in (_PID, _LADRC):
+                return False, ('height_compensation: only accepted while following in PID or '
+                               f'LADRC state, not {FollowState(st).name} (seed: a compensation '
+                               'outside PID_CONTROL is an error)')
+            why = self._check_target(name, self._target, off)
+            if why:
+                return False, why
+            msg = f'compensation {off:g} mm queued, applies in {delay:g} s'
+        elif name == 'gradient_follow':
+            kwargs.setdefault('delay_s', 0.0)
+            kwargs.setdefault('velocity_mm_s', 0.0)
+            kwargs.setdefault('accel_mm_s2', 0.0)
+            if 'target_gap_mm' not in kwargs:
+                return False, 'gradient_follow: missing target_gap_mm'
+            if not following:
+                return False, f'gradient_follow: not following ({FollowState(st).name})'
+            why = self._check_target(name, kwargs['target_gap_mm'], self._offset)
+            if why:
+                return False, why
+            lim = self.params.limits
+            for key, top in (('delay_s', math.inf), ('velocity_mm_s', lim.v_max_mm_s),
+                             ('accel_mm_s2', lim.a_max_mm_s2)):
+                v = kwargs[key]
+                if not (isinstance(v, numbers.Real) and not isinstance(v, bool)
+                        and 0.0 <= v <= top):
+                    return False, f'gradient_follow: {key} must be within 0..{top:g}, got {v!r}'
+            msg = f'gradient follow to {kwargs["target_gap_mm"]:g} mm in {kwargs["delay_s"]:g} s'
+        else:  # reset_fault
+            if st != _FAULT:
+                return False, f'reset_fault: no fault to reset (state {FollowState(st).name})'
+            if self._retracting:
+                return False, 'reset_fault: collision retract still running; retry when it ends'
+            if self._drive_bad:
+                return False, 'reset_fault: the drive still reports a fault or is disabled'
+            msg = 'fault cleared: IDLE'
+        self._pending.append((name, kwargs))
+        return True, msg
+
+    def _apply_commands(self) -> None:
+        pending, self._pending = self._pending, []
+        for name, kw in pending:
+            st = self._state
+            following = _LOCKING <= st <= _LADRC
+            if name == 'start_follow':
+                if st == _IDLE:
+                    self._target = kw['target_gap_mm']
+                    self._offset = 0.0
+                    self._target_eff = self._target
+                    self._state = _LOCKING
+                    self._lock_ticks = 0
+                    self._lock_ok = False
+                elif following:
+                    self._set_target(kw['target_gap_mm'])
+            elif name == 'stop_follow':
+                if st != _FAULT:
+                    self._stop(_IDLE)
+            elif name == 'set_target':
+                if following:
+                    self._set_target(kw['target_gap_mm'])
+            elif name == 'machining':
+                self._machining = kw['on']
+            elif name == 'height_compensation':
+                if st in (_PID, _LADRC):
+                    due = self._tick + int(round(kw['delay_s'] / self._h))
+                    i = len(self._comp)
+                    while i > 0 and self._comp[i - 1][0] > due:
+                        i -= 1
+                    self._comp.insert(i, (due, kw['offset_mm']))
+            elif name == 'gradient_follow':
+                if following:
+                    due = self._tick + int(round(kw['delay_s'] / self._h))
+                    ip = self.params.interp
+                    v = kw['velocity_mm_s'] or ip.v_max_mm_s
+                    a = kw['accel_mm_s2'] or ip.a_max_mm_s2
+                    i = len(self._gradients)
+                    while i > 0 and self._gradients[i - 1][0] > due:
+                        i -= 1
+                    self._gradients.insert(i, (due, kw['target_gap_mm'], v, a))
+            elif name == 'reset_fault':
+                if st == _FAULT and not self._retracting:
+                    self._state = _IDLE
+                    self._fault_reason = ''
+
+    def _stop(self, state: int) -> None:
+        """Leave following: clear target, queues and caps (the command ramps to 0)."""
+        self._state = state
+        self._target = self._target_eff = math.nan
+        self._offset = 0.0
+        self._comp = []
+        self._gradients = []
+        self._followed = False
+        self._uncap()
+
+    def _uncap(self) -> None:
+        self._capped = False
+        self._vlim, self._dulim = self._v_max, self._du_max
+
+    def _set_target(self, target: float) -> None:
+        self._target = target
+        self._change_eff(target + self._offset)
+
+    def _change_eff(self, eff: float) -> None:
+        old, self._target_eff = self._target_eff, eff
+        st = self._state
+        if (st == _PID or st == _LADRC) and abs(eff - old) > self._retarget:
+            # seed comment in FS_PID_CONTROL: a large change is smoother interpolated
+            self._enter_approach(self._last_gap, self._last_enc, None)
+
+    # ------------------------------------------------------------------ transitions
+    def _enter_approach(self, gap: float, enc: float, va: tuple[float, float] | None) -> None:
+        """Enter PREINTERPOLATE from the applied command (seed ``InitPreInterpolate``)."""
+        h = self._h
+        if va is None:
+            self._interp = self._interp_default
+            self._uncap()
+        else:
+            self._interp = Interpolator(InterpParams(va[0], va[1]), h)
+            # seed FollowPID_SetSpeedCtrlParam: the gradient's v/a bound the PID until followed
+            self._capped = True
+            self._cap = (va[0], va[1] * h)
+            self._vlim = min(va[0], self._v_max)
+            self._dulim = min(va[1] * h, self._du_max)
+        self._interp.reset(self._u)
+        self._enc0 = enc
+        target = self._target_eff
+        self._dir = 1.0 if target >= gap else -1.0
+        pid = self._pid
+        pid.reset(gap, target, self._u, enc)
+        pid.set_suppress(False)
+        self._state = _PREINTERP
+        self._followed = False
+        self._inpos_ticks = 0
+        self._approach_ticks = 0
+
+    def _enter_pid(self, gap: float, enc: float) -> None:
+        self._state = _PID
+        self._surf_ref = enc - gap
+
+    def _fault(self, reason: str, retract: bool = False) -> float:
+        self._stop(_FAULT)
+        self._fault_reason = reason
+        if retract:
+            f = self.follow_params
+            lim = self.params.limits
+            self._retract = Interpolator(InterpParams(
+                min(f.retract_velocity_mm_s, lim.v_max_mm_s), lim.a_max_mm_s2), self._h)
+            self._retract.reset(self._u)
+            self._retract.go_distance(f.retract_distance_mm)
+            self._retracting = True
+        return self._fault_out(False)
+
+    def _drive_fault(self, dfault: bool, den: bool) -> float:
+        # The drive no longer executes commands (it stops on its own ramp): command 0 at once,
+        # so nothing is pending when it comes back.
+        self._stop(_FAULT)
+        self._fault_reason = ('drive fault reported by the drive: command 0' if dfault else
+                              'drive disabled during follow: command 0')
+        self._retracting = False
+        return self._out_zero()
+
+    def _out_zero(self) -> float:
+        self._u = self._u_unlim = 0.0
+        self._flags = 0
+        self._src = 0
+        return 0.0
+
+    # ------------------------------------------------------------------ output
+    def _limit(self, u_c: float) -> float:
+        """Limit the output: ±v, then ±a·h against the applied command (law.apply_limits)."""
+        v, du, u_prev = self._vlim, self._dulim, self._u
+        us = v if u_c > v else (-v if u_c < -v else u_c)
+        lo, hi = u_prev - du, u_prev + du
+        u = lo if us < lo else (hi if us > hi else us)
+        self._flags = (us != u_c) | ((u != us) << 1)
+        self._u_unlim = u_c
+        self._u = u
+        return u
+
+    def _ramp0(self) -> float:
+        self._src = 0
+        return self._limit(0.0)
+
+    def _fault_out(self, drive_bad: bool) -> float:
+        if self._retracting:
+            if drive_bad:
+                self._retracting = False
+                return self._out_zero()
+            v = self._retract.step()
+            if self._retract.is_finished():
+                self._retracting = False
+            self._src = 0
+            return self._limit(v)
+        if drive_bad:
+            return self._out_zero()
+        return self._ramp0()
+
+    # ------------------------------------------------------------------ tick
+    def step(self, tick: tuple) -> float:
+        """One tick: return the velocity command in mm/s (+ = up, widens the gap)."""
+        self._tick += 1
+        if self._pending_build is not None:
+            self._swap_params()
+        if self._pending:
+            self._apply_commands()
+        if len(tick) == 9:
+            t, gap, valid, gstamp, enc, estamp, den, dfault, status = tick
+        else:
+            t, gap, valid, gstamp, enc, estamp, den, dfault = tick
+            status = 0
+        drive_bad = dfault or not den
+        self._drive_bad = drive_bad
+        st = self._state
+        if st == _IDLE:
+            return self._ramp0()
+        if st == _FAULT:
+            return self._fault_out(drive_bad)
+        if st == _LOCKING:
+            return self._locking(t, gap, valid, gstamp, enc, estamp, den, dfault, status)
+
+        # ---- checks before anything reaches the control law
+        if drive_bad:
+            return self._drive_fault(dfault, den)
+        s = self._stale_s
+        if not (t - gstamp <= s and t - estamp <= s):
+            return self._fault(f'stale input: gap age {(t - gstamp) * 1e3:.3g} ms, encoder age '
+                               f'{(t - estamp) * 1e3:.3g} ms (limit {s * 1e3:.3g} ms)')
+        if not enc - enc == 0.0:
+            return self._fault(f'encoder position not finite ({enc!r})')
+        if status == GAP_STATUS_COLLISION:
+            return self._fault('collision: the sensor reports nozzle contact; retracting '
+                               f'{self.follow_params.retract_distance_mm:g} mm', True)
+        if not valid or status:
+            return self._invalid(gap, status)
+        if not gap - gap == 0.0:
+            return self._fault(f'gap reading not finite ({gap!r}) though marked valid')
+        if gap <= self._coll:
+            return self._fault(f'collision: gap reading {gap:.3f} mm <= limit {self._coll:g} mm; '
+                               f'retracting {self.follow_params.retract_distance_mm:g} mm', True)
+        self._invalid_ticks = self._miss_ticks = 0
+        if self._gradients and self._gradients[0][0] <= self._tick:
+            _, gt, gv, ga = self._gradients.pop(0)
+            self._target = gt
+            self._target_eff = gt + self._offset
+            # seed: gradient -> LOCKING -> PREINTERPOLATE with the gradient's speed/acc
+            self._enter_approach(gap, enc, (gv, ga))
+        st = self._state
+        if st == _PREINTERP:
+            return self._preinterp(gap, enc)
+        if self._comp and self._comp[0][0] <= self._tick:
+            self._offset = self._comp.pop(0)[1]  # seed UpdateCompHeightQueue
+            self._change_eff(self._target + self._offset)
+            if self._state == _PREINTERP:
+                return self._preinterp(gap, enc)
+        pg, pe = self._last_gap, self._last_enc
+        self._last_gap, self._last_enc = gap, enc
+        if self._edge > 0.0:
+            sf = enc - gap
+            ref = self._surf_ref
+            if sf < ref - self._edge:
+                return self._fault(f'out of panel edge: apparent sheet surface fell '
+                                   f'{ref - sf:.2f} mm below its reference (limit '
+                                   f'{self._edge:g} mm)')
+            self._surf_ref = ref + self._c_edge * (sf - ref)
+        target = self._target_eff
+        if st == _PID:
+            if not self._followed:
+                tol = self._tol if self._approach_ticks < self._widen_ticks else self._wide_tol
+                if abs(gap - target) <= tol:
+                    self._inpos_ticks += 1
+                else:
+                    self._inpos_ticks = 0
+                if self._inpos_ticks >= self._hold_ticks:
+                    self._followed = True
+                    if self._capped:  # seed: GRADIENT_FOLLOWING -> IDLE, speed params back
+                        self._uncap()
+                else:
+                    self._approach_ticks += 1
+                    if self._approach_ticks >= self._timeout_ticks:
+                        return self._fault(self._timeout_reason(gap - target))
+            if (self._followed and self._use_ladrc
+                    and (self._ladrc_machining or not self._machining)):
+                # seed: InitLADRC(height, height, pidOut) of the previous PID tick
+                self._ladrc.reset(pg, self._u, target, pe)
+                self._state = _LADRC
+                return self._ladrc_tick(gap, enc, target)
+            return self._pid_tick(gap, enc, target)
+        # LADRC
+        if not self._use_ladrc or (self._machining and not self._ladrc_machining):
+            # back to the PID, starting from the applied command (bumpless)
+            self._pid.reset(pg, target, self._u, pe)
+            self._state = _PID
+            return self._pid_tick(gap, enc, target)
+        return self._ladrc_tick(gap, enc, target)
+
+    def _pid_modes(self) -> None:
+        # seed FS_PID_CONTROL: feed-forward (after its delay) and suppression once followed
+        # or when not machining; suppression while machining, off otherwise
+        if self._followed or not self._machining:
+            self._pid.set_suppress(self._machining)
+            self._pid.enable_feed_forward(True)
+
+    def _pid_tick(self, gap: float, enc: float, target: float) -> float:
+        self._pid_modes()
+        pid = self._pid
+        u_c = pid.step(gap, enc, target)
+        u = self._limit(u_c)
+        self._src = 2
+        if u != pid.u:
+            pid.set_pre_out(u)
+        return u
+
+    def _ladrc_tick(self, gap: float, enc: float, target: float) -> float:
+        u_c = self._ladrc_step(gap, enc, target)
+        u = self._limit(u_c)
+        self._src = 3
+        if u != u_c:
+            self._ladrc.u = u  # the ESO must see the applied command
+        return u
+
+    def _preinterp(self, gap: float, enc: float) -> float:
+        self._last_gap, self._last_enc = gap, enc
+        target = self._target_eff
+        it = self._interp
+        move = target - gap - it.cached_length_mm  # seed Interp_GoDistance
+        if self._lag_comp:
+            # the axis still owes the planned travel the encoder has not seen yet
+            move -= it.position_mm - (enc - self._enc0)
+        it.go_distance(move)
+        v = it.step()
+        pid = self._pid
+        pid.set_pre_out(v)
+        u_pid = pid.step(gap, enc, target)
+        nxt = u_pid - v
+        err = gap - target
+        u = self._limit(v)
+        self._src = 1
+        if u != v:
+            it.velocity_mm_s = u  # keep the plan on the applied command
+        if abs(err) <= self._window and (
+                (self._dir * nxt < 0.0 and abs(nxt) <= self._pid_du + 1e-9)
+                or it.is_finished()):
+            # seed hand-over: the PID restarts from the interpolator's velocity
+            pid.set_pre_out(u)
+            self._enter_pid(gap, enc)
+        else:
+            self._approach_ticks += 1
+            if self._approach_ticks >= self._timeout_ticks:
+                return self._fault(self._timeout_reason(err))
+        return u
+
+    def _invalid(self, gap: float, status: int) -> float:
+        """Handle an unusable reading: count, hold the command, fault after the allowed time."""
+        finite = gap - gap == 0.0
+        if status == GAP_STATUS_OUT_OF_RANGE or (status == 0 and finite and gap > self._coll):
+            self._miss_ticks += 1
+            if self._miss_ticks >= self._miss_max:
+                return self._fault(
+                    'miss-panel: no sheet under the nozzle (gap reading out of range for '
+                    f'{self._miss_ticks * self._h * 1e3:.3g} ms)')
+        elif status == 0 and finite:
+            return self._fault(f'collision: invalid gap reading {gap:.3f} mm at or below the '
+                               f'limit {self._coll:g} mm; retracting '
+                               f'{self.follow_params.retract_distance_mm:g} mm', True)
+        else:
+            self._invalid_ticks += 1
+            if self._invalid_ticks >= self._invalid_max:
+                what = 'sensor fault status' if status == GAP_STATUS_FAULT else (
+                    f'status {status}' if status else 'not finite')
+                return self._fault(f'gap reading invalid ({what}) for '
+                                   f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
+        if self._state == _PREINTERP:
+            # the plan needs no reading: keep braking/moving as planned
+            self._src = 1
+            return self._limit(self._interp.step())
+        # zero-order hold of the command; PID/LADRC are not stepped on invalid data
+        self._flags = 0
+        return self._u
+
+    def _timeout_reason(self, err: float) -> str:
+        f = self.follow_params
+        return (f'not followed within {f.followed_timeout_s:g} s: error {err:+.3f} mm did not '
+                f'stay within {self._wide_tol:g} mm for {self.params.pid.followed_hold_s:g} s '
+                f'(tolerance widened from {self._tol:g} mm after {f.followed_widen_s:g} s)')
+
+    def _locking(self, t, gap, valid, gstamp, enc, estamp, den, dfault, status) -> float:
+        s = self._stale_s
+        if dfault:
+            why = 'the drive reports a fault'
+        elif not den:
+            why = 'the drive is not enabled'
+        elif not (t - gstamp <= s and t - estamp <= s):
+            why = 'inputs are stale'
+        elif not enc - enc == 0.0:
+            why = 'the encoder position is not finite'
+        elif status == GAP_STATUS_COLLISION or (
+                gap - gap == 0.0 and gap <= self._coll and (valid or not status)):
+            return self._fault(f'collision at start: gap reading {gap:.3f} mm (limit '
+                               f'{self._coll:g} mm); retracting '
+                               f'{self.follow_params.retract_distance_mm:g} mm', True)
+        elif not valid or status:
+            why = ('no sheet under the nozzle / reading out of range'
+                   if status in (0, GAP_STATUS_OUT_OF_RANGE) else 'the gap sensor reports a fault')
+        elif not gap - gap == 0.0:
+            why = 'the gap reading is not finite'
+        elif self._lock_ok:
+            # seed Locking_IsFinished -> PREINTERPOLATE (InitPreInterpolate there)
+            self._enter_approach(gap, enc, None)
+            return self._preinterp(gap, enc)
+        else:
+            # usable inputs on two consecutive ticks: one tick to initialise, then approach
+            self._lock_ok = True
+            return self._ramp0()
+        self._lock_ok = False
+        self._lock_ticks += 1
+        if self._lock_ticks >= self._lock_max:
+            return self._fault(f'start_follow failed: {why} '
+                               f'(LOCKING timeout {self.follow_params.locking_timeout_s:g} s)')
+        return self._ramp0()
+
+    # ------------------------------------------------------------------ status
+    def internals(self) -> dict[str, float | int | bool | str]:
+        """Return this tick's status; keys = ``ladrc_msgs/FollowStatus`` fields."""
+        st = self._state
+        lad = self._ladrc
+        z = dict(fused_gap_mm=self._last_gap if math.isfinite(self._last_gap) else 0.0,
+                 td_x1_mm=0.0, td_x2_mm_s=0.0, eso_z1_mm=0.0, eso_z2=0.0, eso_z3=0.0,
+                 u0_mm_s=0.0, p_term_mm_s=0.0, d_term_mm_s=0.0, disturbance_term_mm_s=0.0)
+        flags = self._flags
+        src = self._src
+        if st == _PID and self._use_ladrc and math.isfinite(self._last_gap):
+            # what the seed's every-tick InitLADRC holds (reset is memoryless, see module doc)
+            enc = self._last_enc if math.isfinite(self._last_enc) else None
+            lad.reset(self._last_gap, self._u, self._target_eff, enc)
+        if st == _LADRC or (st == _PID and self._use_ladrc):
+            z.update(fused_gap_mm=float(lad.fused_gap_mm), td_x1_mm=float(lad.td_x1),
+                     td_x2_mm_s=float(lad.td_x2), eso_z1_mm=float(lad.z1),
+                     eso_z2=float(lad.z2), eso_z3=float(lad.z3), u0_mm_s=float(lad.u0),
+                     disturbance_term_mm_s=float(lad.disturbance_term))
+        if src == 3:
+            z.update(p_term_mm_s=float(lad.p_term),
+                     d_term_mm_s=float(lad.d_term + lad.ff_term))
+            flags |= (LIMIT_VELOCITY if lad.saturated else 0) | (
+                LIMIT_ACCELERATION if lad.rate_limited else 0)
+            ext = lad.z2 if lad.order == 1 else lad.z3
+            if abs(ext) >= self._ext_limit:
+                flags |= LIMIT_ESO_STATE
+        elif src in (1, 2):
+            pid = self._pid
+            z.update(p_term_mm_s=float(pid.p_term), d_term_mm_s=float(pid.d_term + pid.ff_term))
+            if src == 2:
+                flags |= (LIMIT_VELOCITY if pid.saturated else 0) | (
+                    LIMIT_ACCELERATION if pid.rate_limited else 0)
+        unlim = self._u_unlim
+        if src == 2:
+            unlim = self._pid.u_unlimited
+        elif src == 3:
+            unlim = lad.u_unlimited
+        return dict(state=st, followed=self._followed, machining=self._machining,
+                    fault_reason=self._fault_reason, target_gap_mm=self._target_eff, **z,
+                    u_unlimited_mm_s=float(unlim), velocity_mm_s=self._u,
+                    limit_flags=int(flags))

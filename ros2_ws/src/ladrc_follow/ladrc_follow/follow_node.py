@@ -1,0 +1,520 @@
+"""The follow node: the 2 kHz loop around the pure :class:`FollowController`.
+
+Thin by design (DESIGN.md): sensor callbacks store the latest samples as plain values; each
+0.5 ms tick builds a :class:`TickInput`, steps the control core, and publishes one
+``VelocityCommand`` and one ``FollowStatus`` (with the exact inputs used, for replay). Nothing
+else happens on the tick path: no logging, no I/O, no allocation beyond the message fill.
+
+Loop: a deadline loop on an ``EventsExecutor`` (``loop: deadline``, default) or a ROS timer
+(``loop: timer``); ``bench/loop_timing.py`` measures both, docs/follow-node.md says why the
+default won. QoS: see :mod:`ladrc_follow.qos`.
+
+Safety: zero velocity with ``enable = false`` on stop, fault, shutdown, SIGINT and SIGTERM
+(the node installs its own signal handlers so it can still publish the zero command before the
+ROS context goes down).
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import time
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_msgs.msg import (
+    AxisFeedback,
+    CapacitiveHeight,
+    FollowEvent,
+    FollowStatus,
+    VelocityCommand,
+)
+from ladrc_msgs.srv import (
+    GradientFollow,
+    HeightCompensation,
+    ResetFault,
+    SetMachining,
+    SetTarget,
+    StartFollow,
+    StopFollow,
+)
+import numpy as np
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+
+from . import qos
+from .control.follow import FollowController, TickInput
+from .control.params import (
+    DEFAULT_NODE_NAME,
+    ControllerParams,
+    ParameterError,
+    dump_params,
+    params_from_dict,
+    params_to_dict,
+)
+
+# Node-level parameters (not part of the controller's parameter set).
+NODE_PARAMS = {
+    'loop': ('deadline', 'tick source: "deadline" (own deadline loop on an EventsExecutor) or '
+                         '"timer" (a ROS steady-clock timer)'),
+    'diagnostics_period_s': (1.0, 'period of /diagnostics [s]'),
+}
+
+# Ranges shown to users (ros2 param describe) for the values most often tuned; the core's
+# validation (control/params.py) is the authority and checks the whole set on every change.
+RANGES = {
+    'h_s': (0.0001, 0.01),
+    'limits.v_max_mm_s': (0.0, 2000.0),
+    'limits.a_max_mm_s2': (0.0, 1.0e6),
+    'eso.b0': (0.0, 1.0e4),
+    'eso.w0_rad_s': (0.0, 1.0e4),
+    'law.kp': (0.0, 1.0e4),
+    'law.kd': (0.0, 1.0e4),
+    'law.wc_rad_s': (0.0, 1.0e4),
+}
+
+STATUS_TYPES = FollowStatus.get_fields_and_field_types()
+_CONVERT = {'double': float, 'float': float, 'boolean': bool, 'string': str}
+
+
+def _converter(ros_type: str):
+    if ros_type in _CONVERT:
+        return _CONVERT[ros_type]
+    if 'int' in ros_type:
+        return int
+    raise TypeError(ros_type)
+
+
+INTERNAL_CONVERTERS = {name: _converter(t) for name, t in STATUS_TYPES.items()
+                       if t != 'std_msgs/Header'}
+
+
+def flatten(d: dict, prefix: str = '') -> dict[str, Any]:
+    """Flatten a nested parameter dict into ROS-style dotted names."""
+    out: dict[str, Any] = {}
+    for key, value in d.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            out.update(flatten(value, name + '.'))
+        else:
+            out[name] = value
+    return out
+
+
+def _descriptor(name: str, value: Any, description: str = '') -> ParameterDescriptor:
+    desc = ParameterDescriptor(name=name, description=description or f'controller parameter '
+                               f'{name} (docs/control-law.md)')
+    if isinstance(value, bool):
+        desc.type = ParameterType.PARAMETER_BOOL
+    elif isinstance(value, int):
+        desc.type = ParameterType.PARAMETER_INTEGER
+        if name in RANGES:
+            lo, hi = RANGES[name]
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+    elif isinstance(value, float):
+        desc.type = ParameterType.PARAMETER_DOUBLE
+        if name in RANGES:
+            lo, hi = RANGES[name]
+            desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi,
+                                                            step=0.0)]
+    elif isinstance(value, str):
+        desc.type = ParameterType.PARAMETER_STRING
+    elif isinstance(value, (list, tuple)):
+        desc.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+    return desc
+
+
+class FollowNode(Node):
+    """ROS 2 wrapper of :class:`FollowController` (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__(DEFAULT_NODE_NAME)
+        self._declaring = True
+        self._defaults = flatten(params_to_dict(ControllerParams()))
+        self._names = set(self._defaults)
+        for name, (value, text) in NODE_PARAMS.items():
+            self.declare_parameter(name, value, _descriptor(name, value, text))
+        for name, value in self._defaults.items():
+            if isinstance(value, (list, tuple)):
+                value = [float(v) for v in value]
+            self.declare_parameter(name, value, _descriptor(name, value))
+        self._declaring = False
+        # The whole set, as loaded from the parameter file, must be valid to start.
+        self.params = self._params_from_ros({})
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.controller = FollowController(self.params)
+        self._pending_params: ControllerParams | None = None
+        self.h_s = self.params.h_s
+        self.period_ns = int(round(self.h_s * 1e9))
+        self.loop_mode = self.get_parameter('loop').value
+        if self.loop_mode not in ('deadline', 'timer'):
+            raise ParameterError([f"loop = '{self.loop_mode}': use 'deadline' or 'timer'"])
+
+        # Latest samples (zero-order hold), as plain values.
+        self._t0_ns = time.time_ns()
+        self.gap_seq = 0
+        self.gap_mm = math.nan
+        self.gap_valid = False
+        self.gap_status = CapacitiveHeight.STATUS_FAULT
+        self.gap_stamp_s = -math.inf
+        self.enc_seq = 0
+        self.enc_mm = math.nan
+        self.enc_stamp_s = -math.inf
+        self.drive_enabled = False
+        self.drive_fault = False
+        self._gap_last_seq = -1
+        self._enc_last_seq = -1
+        self.missed_gap_samples = 0
+        self.missed_feedback_samples = 0
+
+        self.sub_gap = self.create_subscription(
+            CapacitiveHeight, 'axis/capacitive_height', self._on_gap, qos.CONTROL_INPUT)
+        self.sub_fb = self.create_subscription(
+            AxisFeedback, 'axis/feedback', self._on_feedback, qos.CONTROL_INPUT)
+        self.pub_cmd = self.create_publisher(VelocityCommand, 'axis/velocity_command',
+                                             qos.HIGH_RATE)
+        self.pub_status = self.create_publisher(FollowStatus, 'follow/status', qos.HIGH_RATE)
+        self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS)
+
+        self.create_service(StartFollow, 'follow/start', self._srv_start)
+        self.create_service(StopFollow, 'follow/stop', self._srv_stop)
+        self.create_service(SetTarget, 'follow/set_target', self._srv_set_target)
+        self.create_service(SetMachining, 'follow/set_machining', self._srv_machining)
+        self.create_service(HeightCompensation, 'follow/height_compensation',
+                            self._srv_compensation)
+        self.create_service(GradientFollow, 'follow/gradient_follow', self._srv_gradient)
+        self.create_service(ResetFault, 'follow/reset_fault', self._srv_reset)
+
+        # Reused message objects: publish() serializes at once, so refilling them is safe.
+        self._cmd = VelocityCommand()
+        self._status = FollowStatus()
+        self.tick_index = 0
+        # Loop statistics (ring of periods for the 1 Hz percentiles).
+        self._ring = np.zeros(4096)
+        self._last_start_ns = 0
+        self.overruns = 0
+        self._age_max_us = 0.0
+        self._ticks_at_diag = 0
+        self._diag_t_ns = time.monotonic_ns()
+        self.create_timer(float(self.get_parameter('diagnostics_period_s').value),
+                          self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._publish_event(FollowEvent.PARAMETERS, text=dump_params(self.params))
+
+    # ---- parameters -------------------------------------------------------------------
+    def _params_from_ros(self, changes: dict[str, Any]) -> ControllerParams:
+        values = {name: self.get_parameter(name).value for name in self._names}
+        values.update(changes)
+        return params_from_dict({k: (tuple(v) if isinstance(v, list) else v)
+                                 for k, v in values.items()})
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        if self._declaring:
+            return SetParametersResult(successful=True)
+        changes = {}
+        for p in parameters:
+            if p.name in NODE_PARAMS:
+                return SetParametersResult(successful=False,
+                                           reason=f'{p.name} is fixed at start-up')
+            if p.name not in self._names:
+                return SetParametersResult(successful=False, reason=f'unknown parameter {p.name}')
+            if p.name == 'h_s':
+                return SetParametersResult(successful=False,
+                                           reason='h_s (the loop period) is fixed at start-up')
+            changes[p.name] = p.value
+        try:
+            candidate = self._params_from_ros(changes)
+        except ParameterError as exc:
+            # Rejected: the running values stay.
+            return SetParametersResult(successful=False, reason=str(exc))
+        self._pending_params = candidate  # applied at the next tick boundary
+        return SetParametersResult(successful=True)
+
+    # ---- inputs -----------------------------------------------------------------------
+    def _stamp_s(self, stamp) -> float:
+        return (stamp.sec * 1_000_000_000 + stamp.nanosec - self._t0_ns) * 1e-9
+
+    def _on_gap(self, msg: CapacitiveHeight) -> None:
+        seq = msg.seq
+        if self._gap_last_seq >= 0 and seq > self._gap_last_seq + 1:
+            self.missed_gap_samples += seq - self._gap_last_seq - 1
+        self._gap_last_seq = seq
+        self.gap_seq = seq
+        self.gap_mm = msg.gap_mm
+        self.gap_valid = msg.valid
+        self.gap_status = msg.status
+        self.gap_stamp_s = self._stamp_s(msg.header.stamp)
+
+    def _on_feedback(self, msg: AxisFeedback) -> None:
+        seq = msg.seq
+        if self._enc_last_seq >= 0 and seq > self._enc_last_seq + 1:
+            self.missed_feedback_samples += seq - self._enc_last_seq - 1
+        self._enc_last_seq = seq
+        self.enc_seq = seq
+        self.enc_mm = msg.position_mm
+        self.drive_enabled = msg.drive_enabled
+        self.drive_fault = msg.drive_fault
+        self.enc_stamp_s = self._stamp_s(msg.header.stamp)
+
+    # ---- the tick ---------------------------------------------------------------------
+    def tick(self) -> None:
+        """One controller tick: inputs -> core -> command and status out."""
+        start_mono = time.monotonic_ns()
+        now_ns = time.time_ns()
+        if self._pending_params is not None:
+            self.params, self._pending_params = self._pending_params, None
+            self.controller.set_params(self.params)
+            self._publish_event(FollowEvent.PARAMETERS, text=dump_params(self.params))
+        t_s = (now_ns - self._t0_ns) * 1e-9
+        tick = TickInput(t_s, self.gap_mm, self.gap_valid, self.gap_stamp_s, self.enc_mm,
+                         self.enc_stamp_s, self.drive_enabled, self.drive_fault,
+                         self.gap_status)
+        velocity = self.controller.step(tick)
+        enable = bool(self.controller.enable)
+
+        cmd = self._cmd
+        sec, nsec = divmod(now_ns, 1_000_000_000)
+        cmd.header.stamp.sec = sec
+        cmd.header.stamp.nanosec = nsec
+        cmd.seq = self.tick_index
+        cmd.velocity_mm_s = float(velocity) if enable else 0.0
+        cmd.enable = enable
+        self.pub_cmd.publish(cmd)
+        compute_ns = time.monotonic_ns() - start_mono
+
+        period_ns = start_mono - self._last_start_ns if self._last_start_ns else self.period_ns
+        self._last_start_ns = start_mono
+        self._ring[self.tick_index & 4095] = period_ns * 1e-3
+        overrun = period_ns > 2 * self.period_ns
+        if overrun:
+            self.overruns += 1
+        age_us = (t_s - min(self.gap_stamp_s, self.enc_stamp_s)) * 1e6
+        if age_us > self._age_max_us:
+            self._age_max_us = age_us
+
+        st = self._status
+        st.header.stamp.sec = sec
+        st.header.stamp.nanosec = nsec
+        st.tick = self.tick_index
+        for name, value in self.controller.internals().items():
+            setattr(st, name, INTERNAL_CONVERTERS[name](value))
+        st.t_s = t_s
+        st.gap_seq = self.gap_seq
+        st.gap_mm = float(self.gap_mm)
+        st.gap_valid = bool(self.gap_valid)
+        st.gap_stamp_s = float(self.gap_stamp_s)
+        st.encoder_seq = self.enc_seq
+        st.encoder_mm = float(self.enc_mm)
+        st.encoder_stamp_s = float(self.enc_stamp_s)
+        st.drive_enabled = bool(self.drive_enabled)
+        st.drive_fault = bool(self.drive_fault)
+        st.velocity_mm_s = cmd.velocity_mm_s
+        st.period_us = period_ns * 1e-3
+        st.compute_us = compute_ns * 1e-3
+        st.input_age_us = age_us if math.isfinite(age_us) else -1.0
+        st.overrun = overrun
+        self.pub_status.publish(st)
+        self.tick_index += 1
+
+    def publish_zero(self, reason: str) -> None:
+        """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C)."""
+        cmd = self._cmd
+        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        cmd.header.stamp.sec = sec
+        cmd.header.stamp.nanosec = nsec
+        cmd.seq = self.tick_index
+        cmd.velocity_mm_s = 0.0
+        cmd.enable = False
+        self.pub_cmd.publish(cmd)
+        self.tick_index += 1
+        self.get_logger().info(f'zero velocity commanded: {reason}')
+
+    # ---- follow commands (services) ---------------------------------------------------
+    def _publish_event(self, kind: int, value_mm: float = math.nan, delay_s: float = 0.0,
+                       flag: bool = False, text: str = '', velocity_mm_s: float = 0.0,
+                       accel_mm_s2: float = 0.0) -> None:
+        ev = FollowEvent()
+        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        ev.header.stamp.sec = sec
+        ev.header.stamp.nanosec = nsec
+        ev.tick = self.tick_index  # takes effect at the start of the next tick
+        ev.kind = kind
+        ev.value_mm = float(value_mm)
+        ev.delay_s = float(delay_s)
+        ev.velocity_mm_s = float(velocity_mm_s)
+        ev.accel_mm_s2 = float(accel_mm_s2)
+        ev.flag = bool(flag)
+        ev.text = text
+        self.pub_events.publish(ev)
+
+    def _command(self, response, kind: int, name: str, event: dict, **kwargs):
+        accepted, message = self.controller.command(name, **kwargs)
+        response.accepted = bool(accepted)
+        response.message = str(message)
+        if accepted:
+            self._publish_event(kind, **event)
+        else:
+            self.get_logger().warning(f'{name} rejected: {message}')
+        return response
+
+    def _srv_start(self, request, response):
+        return self._command(response, FollowEvent.START_FOLLOW, 'start_follow',
+                             {'value_mm': request.target_gap_mm},
+                             target_gap_mm=request.target_gap_mm)
+
+    def _srv_stop(self, request, response):
+        return self._command(response, FollowEvent.STOP_FOLLOW, 'stop_follow', {})
+
+    def _srv_set_target(self, request, response):
+        return self._command(response, FollowEvent.SET_TARGET, 'set_target',
+                             {'value_mm': request.target_gap_mm},
+                             target_gap_mm=request.target_gap_mm)
+
+    def _srv_machining(self, request, response):
+        return self._command(response, FollowEvent.MACHINING, 'machining',
+                             {'flag': request.machining}, on=bool(request.machining))
+
+    def _srv_compensation(self, request, response):
+        return self._command(response, FollowEvent.HEIGHT_COMPENSATION, 'height_compensation',
+                             {'value_mm': request.offset_mm, 'delay_s': request.delay_s},
+                             offset_mm=request.offset_mm, delay_s=request.delay_s)
+
+    def _srv_gradient(self, request, response):
+        return self._command(response, FollowEvent.GRADIENT_FOLLOW, 'gradient_follow',
+                             {'value_mm': request.target_gap_mm, 'delay_s': request.delay_s,
+                              'velocity_mm_s': request.velocity_mm_s,
+                              'accel_mm_s2': request.accel_mm_s2},
+                             target_gap_mm=request.target_gap_mm, delay_s=request.delay_s,
+                             velocity_mm_s=request.velocity_mm_s,
+                             accel_mm_s2=request.accel_mm_s2)
+
+    def _srv_reset(self, request, response):
+        return self._command(response, FollowEvent.RESET_FAULT, 'reset_fault', {})
+
+    # ---- diagnostics ------------------------------------------------------------------
+    def loop_statistics(self) -> dict[str, float]:
+        """Rate, period percentiles, overruns, input age since the last call."""
+        now = time.monotonic_ns()
+        elapsed = (now - self._diag_t_ns) * 1e-9
+        ticks = self.tick_index - self._ticks_at_diag
+        self._diag_t_ns, self._ticks_at_diag = now, self.tick_index
+        n = min(ticks, 4096, self.tick_index)
+        idx = (np.arange(self.tick_index - n, self.tick_index) & 4095) if n else []
+        periods = self._ring[idx] if n else np.zeros(1)
+        age, self._age_max_us = self._age_max_us, 0.0
+        return {
+            'rate_hz': ticks / elapsed if elapsed > 0 else 0.0,
+            'period_p50_us': float(np.percentile(periods, 50)),
+            'period_p99_us': float(np.percentile(periods, 99)),
+            'period_max_us': float(periods.max()),
+            'overruns': float(self.overruns),
+            'input_age_max_us': age,
+            'missed_gap_samples': float(self.missed_gap_samples),
+            'missed_feedback_samples': float(self.missed_feedback_samples),
+        }
+
+    def _publish_diagnostics(self) -> None:
+        stats = self.loop_statistics()
+        ctl = self.controller
+        status = DiagnosticStatus()
+        status.name = 'ladrc_follow: follow loop'
+        status.hardware_id = 'z_axis'
+        state = getattr(ctl.state, 'name', str(ctl.state))
+        if ctl.fault_reason:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'{state}: {ctl.fault_reason}'
+        elif stats['rate_hz'] < 0.99 / self.h_s:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'{state}: loop rate {stats["rate_hz"]:.0f} Hz below target'
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = state
+        values = {k: f'{v:.6g}' for k, v in stats.items()}
+        values.update({'state': state, 'fault_reason': ctl.fault_reason or '',
+                       'ticks': str(self.tick_index), 'loop': self.loop_mode})
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [status]
+        self.pub_diag.publish(arr)
+
+
+def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
+    """Drive the node's ticks until ``running[0]`` turns false."""
+    period = node.period_ns
+    if node.loop_mode == 'timer':
+        node.create_timer(node.h_s, node.tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        while running[0]:
+            executor.spin_once(timeout_sec=0.05)
+        return
+    # Deadline loop: serve callbacks until the next deadline, then tick. A tick later than
+    # one period behind its deadline skips ahead instead of bursting to catch up.
+    next_ns = time.monotonic_ns() + period
+    mono = time.monotonic_ns
+    while running[0]:
+        remaining = next_ns - mono()
+        if remaining > 0:
+            executor.spin_once(timeout_sec=remaining * 1e-9)
+            continue
+        node.tick()
+        next_ns += period
+        if mono() - next_ns > period:
+            next_ns = mono() + period
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_follow follow_node --ros-args --params-file FILE``."""
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    running = [True]
+    stop_reason = ['shutdown']
+
+    def _stop(signum, _frame):
+        running[0] = False
+        stop_reason[0] = signal.Signals(signum).name
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    node = None
+    try:
+        try:
+            node = FollowNode()
+        except ParameterError as exc:
+            print(f'follow_node: invalid parameters: {exc}', file=sys.stderr)
+            return 2
+        from rclpy.experimental import EventsExecutor
+
+        executor = EventsExecutor(context=node.context)
+        executor.add_node(node)
+        node.get_logger().info(f'following loop started ({node.loop_mode}, '
+                               f'{1.0 / node.h_s:.0f} Hz)')
+        try:
+            run_loop(node, executor, running)
+        except ExternalShutdownException:
+            stop_reason[0] = 'external shutdown'
+        # Zero velocity before anything goes down.
+        for _ in range(3):
+            node.publish_zero(stop_reason[0])
+        executor.shutdown()
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

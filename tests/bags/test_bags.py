@@ -1,0 +1,263 @@
+"""Bag library, headless-run bags, report, CSV export and the ladrc CLI's error handling."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+
+from ladrc_follow.bag import (
+    BagError,
+    BagWriter,
+    RowPacker,
+    count_lost,
+    open_bag,
+    seq_of,
+    string_msg,
+    write_run_bag,
+)
+from ladrc_follow.cli import main as ladrc
+from ladrc_follow.typestore import ladrc_typestore
+from ladrc_sim.runner import run
+from ladrc_sim.scenario import scenario_from_dict
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+H_S = 0.0005
+
+
+class PController:
+    """Minimal follow controller for the runner: u = -k (gap - target) while following."""
+
+    def __init__(self, k: float = 40.0) -> None:
+        self.k, self.target = k, None
+
+    def command(self, name, **kw):
+        if 'target_gap_mm' in kw:
+            self.target = kw['target_gap_mm']
+        if name == 'stop_follow':
+            self.target = None
+
+    def step(self, tick):
+        if self.target is None or not tick.gap_valid:
+            return 0.0
+        return -self.k * (tick.gap_mm - self.target)
+
+
+SCENARIO = {'name': 'bag_test', 'duration_s': 0.6, 'initial_gap_mm': 2.0,
+            'timeline': [{'t_s': 0.05, 'do': 'start_follow', 'target_gap_mm': 1.0},
+                         {'t_s': 0.1, 'do': 'sensor_dropout', 'duration_s': 0.01},
+                         {'t_s': 0.3, 'do': 'set_target', 'target_gap_mm': 1.2}]}
+
+
+@pytest.fixture(scope='module')
+def run_bag(tmp_path_factory):
+    result = run(scenario_from_dict(SCENARIO), PController())
+    path = tmp_path_factory.mktemp('bags') / 'run'
+    write_run_bag(result, path, 'limits: {v_max_mm_s: 150.0}\n', 'name: bag_test\n')
+    return result, path
+
+
+def test_row_packer_equals_rosbags_serializer():
+    store = ladrc_typestore()
+    rng = np.random.default_rng(3)
+    for typename in ('ladrc_msgs/msg/FollowStatus', 'ladrc_msgs/msg/CapacitiveHeight',
+                     'ladrc_msgs/msg/AxisFeedback', 'ladrc_msgs/msg/SimTruth',
+                     'ladrc_msgs/msg/VelocityCommand'):
+        packer = RowPacker(typename, store)
+        cols = {}
+        for f in packer.fields:
+            kind = packer.dtype[f].kind
+            cols[f] = (rng.normal(size=4) if kind == 'f' else rng.integers(0, 2, 4).astype(bool)
+                       if kind == 'b' else rng.integers(0, 200, 4))
+        rows = packer.pack(4, cols)
+        for i, row in enumerate(rows):
+            msg = store.deserialize_cdr(row, typename)
+            assert bytes(store.serialize_cdr(msg, typename)) == row
+            for f in ('seq', 'tick', 'gap_mm', 'true_gap_mm', 'velocity_mm_s'):
+                if f in cols:
+                    assert getattr(msg, f) == cols[f][i]
+        assert packer.unpack(rows)['header.stamp.sec'].tolist() == list(
+            cols['header.stamp.sec'])
+
+
+def test_seq_counting():
+    assert count_lost(np.array([0, 1, 2, 5, 6, 10])) == 2 + 3
+    assert count_lost(np.array([4, 4, 5])) == 0
+    store = ladrc_typestore()
+    T = store.types
+    for frame in ('', 'a', 'sensor_0', 'abcdefgh'):  # the seq moves with the frame_id length
+        msg = T['ladrc_msgs/msg/SimTruth'](
+            header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
+                sec=3, nanosec=4), frame_id=frame), seq=2**40 + 7, true_gap_mm=1.0,
+            sheet_mm=0.0, nozzle_mm=1.0, edge_coverage=1.0, plate_velocity_mm_s=0.0,
+            collision=False)
+        assert seq_of(store.serialize_cdr(msg, 'ladrc_msgs/msg/SimTruth')) == 2**40 + 7
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_split_writer_lists_every_complete_segment(tmp_path, storage, monkeypatch):
+    clock = [0.0]
+    monkeypatch.setattr('ladrc_follow.bag.time.monotonic', lambda: clock[0])
+    path = tmp_path / 'split'
+    w = BagWriter(path, storage=storage, split_s=1.0)
+    packer = RowPacker('ladrc_msgs/msg/VelocityCommand')
+    rows = packer.pack(50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
+    for i, row in enumerate(rows):
+        clock[0] = i * 0.1
+        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
+        if i == 25:
+            # a segment closes on the write at which it is split_s old: 11 messages each;
+            # mid-run, the bag on disk already holds the two closed segments (and no more)
+            with AnyReader([path]) as r:
+                assert r.message_count == 22
+    w.write('run/scenario', 10**9, string_msg('name: x\n'))
+    w.close()
+    files = sorted(p.name for p in path.iterdir())
+    suffix = '.mcap' if storage == 'mcap' else '.db3'
+    assert files == ['metadata.yaml'] + [f'split_{i}{suffix}' for i in range(5)]
+    with AnyReader([path]) as r:
+        conns = [c for c in r.connections if c.topic == 'axis/velocity_command']
+        seqs = [r.deserialize(d, c.msgtype).seq for c, _, d in r.messages(conns)]
+        qos = conns[0].ext.offered_qos_profiles[0]
+    assert seqs == list(range(50))
+    assert (qos.depth, qos.reliability.name, qos.durability.name) == (100, 'RELIABLE',
+                                                                     'VOLATILE')
+    with open_bag(path) as b:
+        assert b.seq_loss('axis/velocity_command') == (50, 0)
+        cols = b.columns('axis/velocity_command')
+        assert np.allclose(cols['velocity_mm_s'], np.arange(50) * 0.5)
+
+
+def test_writer_refuses_existing_path_and_bad_storage(tmp_path):
+    with pytest.raises(BagError, match='exists already'):
+        BagWriter(tmp_path)
+    with pytest.raises(BagError, match='unknown storage'):
+        BagWriter(tmp_path / 'x', storage='rosbag1')
+
+
+def test_run_bag_has_live_layout_and_run_series(run_bag):
+    result, path = run_bag
+    n = result.t_s.size
+    dropout = 20  # 0.01 s at 2 kHz without a fresh capacitive sample
+    with open_bag(path) as b:
+        assert b.message_counts['follow/status'] == n
+        assert b.message_counts['axis/capacitive_height'] == n - dropout
+        assert b.custom_data['ladrc.source'] == 'headless'
+        st = b.columns('follow/status')
+        assert np.array_equal(st['tick'], np.arange(n))
+        assert np.allclose(st['stamp_s'], result.t_s, atol=1e-9)
+        assert np.array_equal(st['velocity_mm_s'], result.command_mm_s)
+        assert np.array_equal(st['gap_mm'], result.reading_mm)
+        # during the dropout the status keeps using the last sample (same seq, old stamp)
+        i0 = int(round(0.1 / H_S))
+        assert st['gap_seq'][i0 + 5] == st['gap_seq'][i0 - 1]
+        assert st['gap_stamp_s'][i0 + 5] == pytest.approx(result.t_s[i0 - 1])
+        # a dropout is not a loss: the sensor published nothing, every sample is counted
+        assert b.seq_loss('axis/capacitive_height') == (n - dropout, 0)
+        tr = b.columns('sim/truth')
+        assert np.array_equal(tr['true_gap_mm'], result.true_gap_mm)
+        events = [(m.tick, m.kind, m.value_mm) for _, m in b.messages('follow/events')]
+        assert events[0][:2] == (0, 8)
+        assert events[1:] == [(100, 1, 1.0), (600, 3, 1.2)]
+        params = next(m.data for _, m in b.messages('run/parameters'))
+        assert 'v_max_mm_s' in params
+
+
+def test_report_metrics_match_the_runs(run_bag, tmp_path):
+    result, path = run_bag
+    out = tmp_path / 'rep'
+    assert ladrc(['report', str(path), '-o', str(out), '-q']) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        'command.png', 'eso.png', 'gap.png', 'report.json', 'report.md', 'state.png']
+    report = json.loads((out / 'report.json').read_text())
+    m = result.metrics.as_dict()
+    for key in ('followed_at_s', 'error_rms_mm', 'error_max_mm', 'itae_mm_s2', 'collisions'):
+        if isinstance(m[key], float) and math.isnan(m[key]):
+            assert report['metrics'][key] is None
+        else:
+            assert report['metrics'][key] == pytest.approx(m[key], rel=1e-6, abs=1e-9), key
+    assert report['messages_lost'] == 0
+    assert report['timing']['period_us']['p50'] == pytest.approx(500.0)
+    md = (out / 'report.md').read_text()
+    assert '(gap.png)' in md and 'error_rms_mm' in md
+    assert (out / 'gap.png').read_bytes()[:4] == b'\x89PNG'
+
+
+def test_export_one_csv_per_topic(run_bag, tmp_path):
+    result, path = run_bag
+    out = tmp_path / 'csv'
+    assert ladrc(['export', str(path), '-o', str(out), '-q']) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert 'follow__status.csv' in names and 'sim__truth.csv' in names and len(names) == 8
+    with (out / 'sim__truth.csv').open() as f:
+        rows = list(csv.reader(f))
+    assert rows[0][:4] == ['timestamp_ns', 'header.stamp.sec', 'header.stamp.nanosec',
+                           'header.frame_id']
+    col = rows[0].index('true_gap_mm')
+    assert np.allclose([float(r[col]) for r in rows[1:]], result.true_gap_mm)
+
+
+def _bad(tmp_path, argv, capsys, out):
+    code = ladrc(argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1 and 'Traceback' not in err, err
+    assert not out.exists()
+    assert not any(p.name.endswith('.partial') for p in out.parent.iterdir())
+    return err
+
+
+@pytest.mark.parametrize('command', ['report', 'export'])
+def test_broken_bags_give_one_line(run_bag, tmp_path, capsys, command):
+    _, good = run_bag
+    out = tmp_path / 'out'
+    err = _bad(tmp_path, [command, str(tmp_path / 'missing'), '-o', str(out), '-q'], capsys, out)
+    assert 'no such file' in err
+    # truncated storage file
+    trunc = tmp_path / 'trunc'
+    trunc.mkdir()
+    (trunc / 'metadata.yaml').write_bytes((good / 'metadata.yaml').read_bytes())
+    data = (good / 'run_0.mcap').read_bytes()
+    (trunc / 'run_0.mcap').write_bytes(data[:len(data) // 2])
+    _bad(tmp_path, [command, str(trunc), '-o', str(out), '-q'], capsys, out)
+    # random bytes
+    rnd = tmp_path / 'random'
+    rnd.mkdir()
+    (rnd / 'metadata.yaml').write_bytes(os.urandom(3000))
+    _bad(tmp_path, [command, str(rnd), '-o', str(out), '-q'], capsys, out)
+    # a file that is no bag
+    junk = tmp_path / 'junk.mcap'
+    junk.write_bytes(os.urandom(100))
+    _bad(tmp_path, [command, str(junk), '-o', str(out), '-q'], capsys, out)
+
+
+def test_report_needs_follow_status(tmp_path, capsys):
+    path = tmp_path / 'nostatus'
+    with BagWriter(path, split_s=None) as w:
+        w.write('run/scenario', 1, string_msg('name: x\n'))
+    out = tmp_path / 'out'
+    err = _bad(tmp_path, ['report', str(path), '-o', str(out)], capsys, out)
+    assert "no 'follow/status'" in err
+
+
+def test_cli_placeholders_and_help(capsys):
+    assert ladrc(['replay', 'x']) == 2
+    assert 'not implemented yet' in capsys.readouterr().err
+    for sub in ('report', 'export', 'simulate', 'replay', 'suite'):
+        with pytest.raises(SystemExit) as exc:
+            ladrc([sub, '--help'])
+        assert exc.value.code == 0
+    with pytest.raises(SystemExit) as exc:
+        ladrc(['frobnicate'])
+    assert exc.value.code == 2
+
+
+def test_simulate_rejects_bad_input(tmp_path, capsys):
+    out = tmp_path / 'sim'
+    _bad(tmp_path, ['simulate', str(tmp_path / 'nope.yaml'), '-o', str(out)], capsys, out)
+    params = tmp_path / 'p.yaml'
+    params.write_text('no_such_section: {x: 1}\n')
+    _bad(tmp_path, ['simulate', 'step', '--params', str(params), '-o', str(out)], capsys, out)
