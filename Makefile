@@ -1,5 +1,10 @@
 # The README's commands. Each sets up what it needs (scripts/setup-env) on a fresh machine.
-.PHONY: test lint setup clean
+.PHONY: demo test lint setup clean
+
+# A live simulated run (sim + controller + recorder) ending in a bag and a report.
+demo:
+	scripts/in-env python -m ladrc_follow.demo
+
 
 # Lint (ruff: flake8 + pep257 rule sets, the ROS Python conventions), then every test.
 test:

@@ -53,6 +53,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
 
 from . import qos
 from .control.follow import FollowController, TickInput
@@ -189,6 +190,7 @@ class FollowNode(Node):
         self.pub_status = self.create_publisher(FollowStatus, 'follow/status', qos.HIGH_RATE)
         self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS)
+        self.pub_run_params = self.create_publisher(String, 'run/parameters', qos.RUN_TEXT)
 
         self.create_service(StartFollow, 'follow/start', self._srv_start)
         self.create_service(StopFollow, 'follow/stop', self._srv_stop)
@@ -213,7 +215,12 @@ class FollowNode(Node):
         self.create_timer(float(self.get_parameter('diagnostics_period_s').value),
                           self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._publish_event(FollowEvent.PARAMETERS, text=dump_params(self.params))
+        self._publish_parameters()
+
+    def _publish_parameters(self) -> None:
+        text = dump_params(self.params)
+        self._publish_event(FollowEvent.PARAMETERS, text=text)
+        self.pub_run_params.publish(String(data=text))
 
     # ---- parameters -------------------------------------------------------------------
     def _params_from_ros(self, changes: dict[str, Any]) -> ControllerParams:
@@ -278,7 +285,7 @@ class FollowNode(Node):
         if self._pending_params is not None:
             self.params, self._pending_params = self._pending_params, None
             self.controller.set_params(self.params)
-            self._publish_event(FollowEvent.PARAMETERS, text=dump_params(self.params))
+            self._publish_parameters()
         t_s = (now_ns - self._t0_ns) * 1e-9
         tick = TickInput(t_s, self.gap_mm, self.gap_valid, self.gap_stamp_s, self.enc_mm,
                          self.enc_stamp_s, self.drive_enabled, self.drive_fault,
@@ -316,6 +323,7 @@ class FollowNode(Node):
         st.gap_seq = self.gap_seq
         st.gap_mm = float(self.gap_mm)
         st.gap_valid = bool(self.gap_valid)
+        st.gap_status = int(self.gap_status)
         st.gap_stamp_s = float(self.gap_stamp_s)
         st.encoder_seq = self.enc_seq
         st.encoder_mm = float(self.enc_mm)

@@ -11,6 +11,8 @@
   reliable writer; loss is measured from the seq counters and reported in /diagnostics.
 * Events (follow commands and parameter sets as applied): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST
   100, so a recorder started late still gets the parameter set in force.
+* run/parameters, run/scenario (std_msgs/String): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST 1: the
+  parameter set in force and the scenario text, for self-describing bags.
 * /diagnostics: the ROS default (RELIABLE, VOLATILE, KEEP_LAST 10).
 
 A driver for the real axis uses the same profiles (ladrc_sim's sim node defines the same ones
@@ -28,6 +30,10 @@ CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 EVENTS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# run/parameters, run/scenario: the texts that make a bag self-describing (latched, last one).
+RUN_TEXT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)

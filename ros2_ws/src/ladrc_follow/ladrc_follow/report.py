@@ -65,8 +65,9 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     bag.require('follow/status')
     prog = stderr_progress('follow/status') if progress else None
     st = bag.columns('follow/status', progress=prog)
-    if st['tick'].size < 2:
-        raise BagError(f'{bag.path}: follow/status holds {st["tick"].size} message(s); '
+    n_status = st['tick'].size if 'tick' in st else 0
+    if n_status < 2:
+        raise BagError(f'{bag.path}: follow/status holds {n_status} message(s); '
                        'a report needs a run')
     t = st['stamp_s'] - st['stamp_s'][0]
     h_s = float(np.median(np.diff(st['stamp_s'])))

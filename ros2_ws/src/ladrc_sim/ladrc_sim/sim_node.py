@@ -14,6 +14,7 @@ with a readable reason, until commands are back for ``watchdog_recover_s``.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 import signal
 import sys
 import time
@@ -34,15 +35,19 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
 
 from .runner import run
-from .scenario import ScenarioError, load_scenario
+from .scenario import ScenarioError, list_scenarios, load_scenario
 
 # The contract's QoS (docs/interfaces.md): reliable high-rate publishers so a recorder loses
 # nothing; a best-effort command input so the drive always acts on the freshest command.
 HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+RUN_TEXT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                            reliability=ReliabilityPolicy.BEST_EFFORT,
                            durability=DurabilityPolicy.VOLATILE)
@@ -181,6 +186,9 @@ class SimNode(Node):
         self.pub_fb = self.create_publisher(AxisFeedback, 'axis/feedback', HIGH_RATE)
         self.pub_truth = self.create_publisher(SimTruth, 'sim/truth', HIGH_RATE)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # The scenario text, latched: a recorder puts it into the bag (self-describing runs).
+        self.pub_scenario = self.create_publisher(String, 'run/scenario', RUN_TEXT)
+        self.pub_scenario.publish(String(data=self.scenario_text()))
         self.follow_clients = {name: self.create_client(srv, topic)
                         for name, (srv, topic) in SERVICES.items()}
         self.bridge: DriveBridge | None = None
@@ -193,6 +201,15 @@ class SimNode(Node):
         self._pending: list = []
         self.create_timer(1.0, self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def scenario_text(self) -> str:
+        """YAML text of the scenario being played (its file as written)."""
+        source = getattr(self.scenario, 'source', '') or ''
+        shipped = {q.stem: q for q in list_scenarios()}
+        for path in (Path(source), shipped.get(source)):
+            if path is not None and path.is_file():
+                return path.read_text(encoding='utf-8')
+        return f'name: {self.scenario.name}\n'
 
     def attach(self, bridge: DriveBridge) -> None:
         """Wire the bridge's command callback."""
