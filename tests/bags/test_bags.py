@@ -243,9 +243,10 @@ def test_report_needs_follow_status(tmp_path, capsys):
     assert "no 'follow/status'" in err
 
 
-def test_cli_placeholders_and_help(capsys):
-    assert ladrc(['replay', 'x']) == 2
-    assert 'not implemented yet' in capsys.readouterr().err
+def test_cli_help_and_missing_bag(capsys):
+    assert ladrc(['replay', 'no/such/bag']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'no/such/bag' in err and 'Traceback' not in err
     for sub in ('report', 'export', 'simulate', 'replay', 'suite'):
         with pytest.raises(SystemExit) as exc:
             ladrc([sub, '--help'])

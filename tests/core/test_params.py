@@ -97,7 +97,7 @@ def test_limit_contradiction():
     r = reasons(limits=LimitParams(v_max_mm_s=50.0, a_max_mm_s2=4000.0))
     assert any(m.startswith('limits.v_max_mm_s (50) below pid.v_max_mm_s (150)')
                and 'contradiction' in m for m in r), r
-    assert any(m.startswith('limits.v_max_mm_s (50) below interp.v_max_mm_s (100)')
+    assert any(m.startswith('limits.v_max_mm_s (50) below interp.v_max_mm_s (60)')
                for m in r), r
 
 

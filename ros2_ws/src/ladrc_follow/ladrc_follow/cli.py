@@ -129,16 +129,165 @@ def _scenario_text(arg: str, scenario: Any) -> str:
     return f'name: {getattr(scenario, "name", arg)}\n'
 
 
+# ---- suite --------------------------------------------------------------------------------
+def _add_suite(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--scenarios', help='comma-separated scenario names or YAML paths '
+                   '(default: the whole shipped library)')
+    p.add_argument('--variants', help='comma-separated controller variants (default: all: '
+                   'pid, ladrc, ladrc_comp, ladrc_kalman, ladrc_98, ladrc_146)')
+    p.add_argument('--params', help='base parameter YAML the variants modify '
+                   '(default: the shipped defaults)')
+    p.add_argument('-o', '--output', default='suite_results',
+                   help='folder for suite.md, suite.json, suite.csv (default: suite_results)')
+    p.add_argument('--jobs', type=int, default=2, help='worker processes (default: 2)')
+    p.add_argument('--quick', action='store_true',
+                   help='cut every scenario to 3 s (smoke test, not the quality figures)')
+    p.add_argument('-q', '--quiet', action='store_true', help='no progress on stderr')
+
+
+def _run_suite(a: argparse.Namespace) -> int:
+    from .control.params import ParameterError, load_params
+    from .suite import SuiteError, markdown_table, summary, timed_suite, write_outputs
+
+    def split(v: str | None) -> list[str] | None:
+        return [x.strip() for x in v.split(',') if x.strip()] if v else None
+
+    try:
+        base = load_params(a.params) if a.params else None
+    except (ParameterError, OSError) as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    if a.jobs < 1:
+        raise CliError(f'--jobs must be >= 1, got {a.jobs}')
+
+    def progress(row) -> None:
+        if not a.quiet:
+            print(f'{row.scenario}/{row.variant}: {row.final_state} ({row.wall_s:.1f} s)',
+                  file=sys.stderr)
+
+    try:
+        rows, wall = timed_suite(scenarios=split(a.scenarios), variants=split(a.variants),
+                                 base_params=base, jobs=a.jobs, quick=a.quick,
+                                 progress=progress)
+    except SuiteError as exc:
+        raise CliError(str(exc)) from None
+    command = ' '.join(['ladrc suite'] + [f'--{k} {v}' for k, v in (
+        ('scenarios', a.scenarios), ('variants', a.variants), ('params', a.params),
+        ('jobs', a.jobs)) if v] + (['--quick'] if a.quick else []) + ['-o', str(a.output)])
+    write_outputs(rows, a.output, command)
+    print(markdown_table(rows))
+    print(json.dumps({'output': str(a.output), **summary(rows, wall)}))
+    return 0
+
+
+# ---- replay -------------------------------------------------------------------------------
+def _add_replay(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bag', help='bag folder (or a file inside it)')
+    p.add_argument('--params', metavar='FILE',
+                   help="what-if: replay with this parameter YAML instead of the bag's own")
+    p.add_argument('--set', metavar='KEY=VALUE', action='append', default=[],
+                   help='what-if: override one parameter (repeatable), e.g. --set law.kp=12')
+    p.add_argument('--controller', choices=('ladrc', 'pid'),
+                   help='what-if: follow mode (default: as recorded)')
+    p.add_argument('-o', '--output', metavar='DIR',
+                   help='output folder (what-if default: <bag>_whatif; own replay: '
+                        'replay.json only when given)')
+    p.add_argument('--no-internals', action='store_true',
+                   help='compare the command only (faster; skips the ESO/state fields)')
+
+
+def _run_replay(a: argparse.Namespace) -> int:
+    from .control.params import ParameterError
+    from .replay import (
+        OPEN_LOOP_NOTE,
+        ReplayError,
+        compare,
+        load_recording,
+        parse_set,
+        replay,
+        whatif_params,
+        write_whatif,
+    )
+    from .report import strict_json
+
+    whatif = bool(a.params or a.set or a.controller)
+    try:
+        overrides = parse_set(a.set)
+        out = Path(a.output) if a.output else None
+        if whatif and out is None:
+            out = Path(str(Path(a.bag)).rstrip('/') + '_whatif')
+        if out is not None and out.exists():
+            raise CliError(f'{out} exists already: outputs are never overwritten')
+        rec = load_recording(a.bag)
+        if whatif:
+            params = whatif_params(rec, a.params, overrides)
+            source = ' + '.join(x for x in (
+                f'--params {a.params}' if a.params else f'bag set ({rec.params_source})',
+                ' '.join(f'--set {s}' for s in a.set),
+                f'--controller {a.controller}' if a.controller else '') if x)
+            res = replay(rec, params, overrides=overrides or None, mode=a.controller,
+                         params_source=source)
+        else:
+            res = replay(rec, record_internals=not a.no_internals)
+    except (ReplayError, ParameterError) as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    summary = compare(rec, res)
+    print(f'bag: {rec.path} ({rec.source or "unknown source"}, ticks {summary["start_tick"]}'
+          f'..{summary["end_tick"]}, {summary["ticks"]} replayed at '
+          f'{summary["ticks_per_s"]:.0f} ticks/s)')
+    print(f'parameters: {res.params_source}')
+    for note in rec.notes + res.notes:
+        print(f'note: {note}')
+    for r in res.rejected:
+        print(f'rejected by the replayed controller: {r}')
+    if summary['missing_ticks']:
+        print(f'{summary["missing_ticks"]} tick(s) missing: exact replay holds only up to tick '
+              f'{summary["exact_until_tick"]}; {summary["mismatches_after_gap"]} mismatch(es) '
+              'after it (the controller cannot be stepped over ticks the bag lacks)')
+    if whatif:
+        from .replay import whatif_table
+
+        table = whatif_table(rec, res)
+        written = write_whatif(rec, res, out)
+        print(f'what-if ({OPEN_LOOP_NOTE})')
+        print(f'command RMS recorded {table["command_rms_recorded_mm_s"]:.4g} mm/s, what-if '
+              f'{table["command_rms_whatif_mm_s"]:.4g} mm/s; difference RMS '
+              f'{table["command_rms_difference_mm_s"]:.4g} mm/s, max '
+              f'{table["command_max_difference_mm_s"]:.4g} mm/s')
+        print(f'limit hits (v, a) recorded {tuple(table["limit_hits_recorded"].values())}, '
+              f'what-if {tuple(table["limit_hits_whatif"].values())}')
+        print(f'written: {written}/whatif.md, whatif.png, whatif.json, params.yaml')
+        line = {'mode': 'what-if', **summary, 'open_loop': True,
+                'command_rms_difference_mm_s': table['command_rms_difference_mm_s'],
+                'command_max_difference_mm_s': table['command_max_difference_mm_s'],
+                'output': str(written)}
+        print(json.dumps(strict_json(line)))
+        return 0
+    ok = summary['mismatches'] == 0 and summary['missing_ticks'] == 0
+    if summary['mismatches']:
+        fm = summary['first_mismatch']
+        print(f'MISMATCH: {summary["mismatches"]} tick(s) differ bit for bit, first at tick '
+              f'{summary["first_mismatch_tick"]} (recorded {fm["recorded_mm_s"]!r}, replayed '
+              f'{fm["replayed_mm_s"]!r} mm/s)')
+    elif summary['missing_ticks']:
+        print(f'bit-for-bit up to tick {summary["exact_until_tick"]} (the first missing tick); '
+              'NOT verified after it')
+    else:
+        print(f'bit-for-bit: all {summary["ticks"]} commands reproduced')
+    if summary['internal_mismatch_ticks']:
+        print(f'internals differ on {summary["internal_mismatch_ticks"]} tick(s): '
+              f'{summary["internal_mismatch_fields"]}')
+    line = {'mode': 'own', **summary}
+    if out is not None:
+        tmp = out.with_name(f'.{out.name}.partial')
+        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / 'replay.json').write_text(json.dumps(strict_json(line), indent=1))
+        tmp.replace(out)
+        line['output'] = str(out)
+    print(json.dumps(strict_json(line)))
+    return 0 if ok else 1
+
+
 # ---- placeholders -------------------------------------------------------------------------
-def _add_bag_only(p: argparse.ArgumentParser) -> None:
-    p.add_argument('args', nargs='*', help='(not implemented yet)')
-
-
-def _not_implemented(a: argparse.Namespace) -> int:
-    print(f'ladrc {a.command}: not implemented yet', file=sys.stderr)
-    return EXIT_USAGE
-
-
 # name -> (help, add arguments, run). Extend here.
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
                           Callable[[argparse.Namespace], int]]] = {
@@ -147,10 +296,11 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
     'report': ('metrics, loop timing, loss and plots of a bag (report.md, report.json, PNGs)',
                _add_report, _run_report),
     'export': ('one CSV per topic of a bag', _add_export, _run_export),
-    'replay': ("re-run the controller on a bag's recorded inputs", _add_bag_only,
-               _not_implemented),
-    'suite': ('run the scenario suite and compare controllers', _add_bag_only,
-              _not_implemented),
+    'replay': ("re-run the controller on a bag's recorded inputs (bit-for-bit check, what-if)",
+               _add_replay, _run_replay),
+    'suite': ('run the scenario library for PID and LADRC variants; comparison table '
+              "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
+              _add_suite, _run_suite),
 }
 
 

@@ -75,13 +75,21 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     target = st['target_gap_mm'].astype(float)
     if np.any(state != 0):  # a controller that reports its state: no target while IDLE
         target = np.where(state != 0, target, np.nan)
+    # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold zeros,
+    # which would squash the plots' scales.
+    active = np.isin(state, (3, 4)) if np.any(state != 0) else np.ones(state.size, bool)
+
+    def when_active(col: str) -> np.ndarray:
+        return np.where(active, st[col].astype(float), np.nan)
+
     series: dict[str, np.ndarray] = {'t_s': t, 'gap_mm': st['gap_mm'], 'target_mm': target,
-                                     'td_x1_mm': st['td_x1_mm'], 'state': state,
+                                     'td_x1_mm': when_active('td_x1_mm'), 'state': state,
                                      'followed': st['followed'],
                                      'velocity_mm_s': st['velocity_mm_s'],
                                      'u_unlimited_mm_s': st['u_unlimited_mm_s'],
-                                     'eso_z1_mm': st['eso_z1_mm'], 'eso_z2': st['eso_z2'],
-                                     'eso_z3': st['eso_z3']}
+                                     'eso_z1_mm': when_active('eso_z1_mm'),
+                                     'eso_z2': when_active('eso_z2'),
+                                     'eso_z3': when_active('eso_z3')}
     gap = st['gap_mm'].astype(float)
     gap_source = 'measured (follow/status gap_mm)'
     collision = np.zeros(t.size, dtype=bool)

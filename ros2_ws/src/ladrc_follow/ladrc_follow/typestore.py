@@ -30,7 +30,7 @@ def msg_dir() -> Path:
         pass
     env_root = os.environ.get('LADRC_ROOT')
     roots = [Path(env_root)] if env_root else []
-    roots.append(Path(__file__).resolve().parents[3])
+    roots.append(Path(__file__).resolve().parents[4])  # <root>/ros2_ws/src/<pkg>/<pkg>/
     for root in roots:
         src = root / 'ros2_ws' / 'src' / PACKAGE / 'msg'
         if src.is_dir():

@@ -33,7 +33,10 @@ import math
 class InterpParams:
     """Limits of the approach move (mm/s, mm/s²) and the tick period (s)."""
 
-    v_max_mm_s: float = 100.0
+    # 60, not 100: half off the sheet the reading moves up to 2x the gap (sensor edge model),
+    # so the plan, made in reading units, needs ~2x the braking margin; at 100 mm/s the
+    # edge_open_10_1 approach reached the 0.2 mm collision limit (docs/quality.md).
+    v_max_mm_s: float = 60.0
     a_max_mm_s2: float = 2000.0
 
     def problems(self) -> list[str]:

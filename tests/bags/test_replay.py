@@ -1,0 +1,261 @@
+"""``ladrc replay``: headless bags replay bit for bit; perturbed inputs or other parameters not.
+
+The reference is the producer itself: the headless runner stepped the same
+:class:`FollowController` on these inputs, so an exact replay must reproduce every float64 bit
+of every command (and of every recorded internal). A replay that applied an event one tick late,
+mapped an event field to the wrong argument or lost the parameter set would show mismatches.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+import json
+import math
+
+from ladrc_follow.bag import BagWriter, string_msg, write_run_bag
+from ladrc_follow.cli import main as ladrc
+from ladrc_follow.control.follow import COMMANDS, FollowController
+from ladrc_follow.control.params import ControllerParams, dump_params
+from ladrc_follow.replay import (
+    KIND_NAMES,
+    RecordedEvent,
+    ReplayError,
+    compare,
+    event_command,
+    load_recording,
+    parse_set,
+    replay,
+    whatif_params,
+)
+from ladrc_sim.runner import run
+from ladrc_sim.scenario import scenario_from_dict
+import numpy as np
+import pytest
+
+# Every kind of event the replay must re-apply at its tick: a start, a machining flag on and
+# off (PID <-> LADRC hand-overs), a target change above the re-interpolation threshold, a
+# height compensation with its queue, a gradient follow with a delay and a drive fault.
+SCENARIO = {
+    'name': 'replay_test', 'duration_s': 2.6, 'seed': 3, 'initial_gap_mm': 2.0,
+    'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
+    'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.1, 'freq_hz': 2.0}]},
+    'timeline': [
+        {'t_s': 0.02, 'do': 'start_follow', 'target_gap_mm': 1.0},
+        {'t_s': 0.5, 'do': 'machining', 'on': True},
+        {'t_s': 0.7, 'do': 'set_target', 'target_gap_mm': 1.3},
+        {'t_s': 1.2, 'do': 'height_compensation', 'offset_mm': 0.1},
+        {'t_s': 1.4, 'do': 'machining', 'on': False},
+        {'t_s': 1.6, 'do': 'gradient_follow', 'target_gap_mm': 1.0, 'delay_s': 0.05},
+        {'t_s': 1.9, 'do': 'sensor_dropout', 'duration_s': 0.004},
+        {'t_s': 2.3, 'do': 'drive', 'enabled': True, 'fault': True},
+    ]}
+STATE_PREINTERP, STATE_PID, STATE_LADRC, STATE_FAULT = 2, 3, 4, 5
+
+
+@pytest.fixture(scope='module')
+def headless(tmp_path_factory):
+    params = ControllerParams()
+    result = run(scenario_from_dict(SCENARIO), FollowController(params, mode='ladrc'),
+                 record_internals=True)
+    path = tmp_path_factory.mktemp('replay') / 'run'
+    write_run_bag(result, path, dump_params(params), 'name: replay_test\n',
+                  controller='ladrc')
+    return result, path
+
+
+def _json_line(text: str) -> dict:
+    return json.loads(text.strip().splitlines()[-1])
+
+
+def test_scenario_exercises_every_event(headless):
+    # The test is only as strong as the run: check it went through the hand-overs and events.
+    result, _ = headless
+    state = result.internals['state']
+    assert {STATE_PREINTERP, STATE_PID, STATE_LADRC, STATE_FAULT} <= set(state.astype(int))
+    target = result.internals['target_gap_mm']
+    h = result.h_s
+    assert target[int(1.1 / h)] == pytest.approx(1.3)
+    assert target[int(1.3 / h)] == pytest.approx(1.4)  # compensation applied
+    assert target[int(1.7 / h)] == pytest.approx(1.1)  # gradient target + compensation
+    machining = result.internals['machining']
+    assert machining[int(0.6 / h)] == 1 and machining[int(1.5 / h)] == 0
+
+
+def test_headless_bag_replays_bit_for_bit(headless, capsys):
+    result, path = headless
+    rec = load_recording(path)
+    assert rec.params_source == 'follow/events PARAMETERS at tick 0'
+    assert rec.mode == 'ladrc' and rec.source == 'headless'
+    res = replay(rec)
+    # the replayed commands are the runner's commands, bit for bit
+    assert np.array_equal(res.velocity.view(np.uint64),
+                          np.asarray(result.command_mm_s, dtype=np.float64).view(np.uint64))
+    s = compare(rec, res)
+    assert s['ticks'] == result.t_s.size
+    assert s['mismatches'] == 0 and s['first_mismatch_tick'] is None
+    assert s['missing_ticks'] == 0 and s['internal_mismatch_ticks'] == 0
+    assert res.rejected == []
+    # the CLI says the same and exits 0; the summary ends with one JSON line
+    assert ladrc(['replay', str(path)]) == 0
+    line = _json_line(capsys.readouterr().out)
+    assert line['ticks'] == result.t_s.size and line['mismatches'] == 0
+    assert line['missing_ticks'] == 0 and line['first_mismatch_tick'] is None
+    assert line['params_source'] == rec.params_source
+
+
+def test_a_perturbed_input_is_detected_at_its_tick(headless):
+    _, path = headless
+    rec = load_recording(path)
+    k = int(1.0 / rec.h_s)  # following (LADRC or PID)
+    gap = rec.inputs['gap_mm'].copy()
+    gap[k] = np.nextafter(gap[k], math.inf)  # one ulp
+    rec.inputs['gap_mm'] = gap
+    s = compare(rec, replay(rec, record_internals=False))
+    assert s['mismatches'] > 0
+    assert s['first_mismatch_tick'] == k
+
+
+def test_another_parameter_set_mismatches(headless, capsys, tmp_path):
+    _, path = headless
+    rec = load_recording(path)
+    kp = rec.params.law.kp
+    res = replay(rec, whatif_params(rec, overrides={'law.kp': kp * 1.5}),
+                 overrides={'law.kp': kp * 1.5})
+    s = compare(rec, res)
+    assert s['mismatches'] > 0
+    # before the LADRC first runs, the law gain plays no part: identical commands
+    first_ladrc = int(np.argmax(rec.status['state'] == STATE_LADRC))
+    assert s['first_mismatch_tick'] >= first_ladrc
+    # the CLI what-if exits 0 and writes its comparison
+    out = tmp_path / 'wi'
+    assert ladrc(['replay', str(path), '--set', f'law.kp={kp * 1.5}', '-o', str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert 'open loop' in printed
+    line = _json_line(printed)
+    assert line['mode'] == 'what-if' and line['open_loop'] is True
+    assert line['command_max_difference_mm_s'] > 0
+    assert {p.name for p in out.iterdir()} == {'whatif.png', 'whatif.md', 'whatif.json',
+                                                'params.yaml'}
+    table = json.loads((out / 'whatif.json').read_text())
+    a, b = rec.command, res.velocity
+    assert table['command_rms_difference_mm_s'] == pytest.approx(
+        float(np.sqrt(np.mean((b - a) ** 2))))
+    assert f'kp: {kp * 1.5}' in (out / 'params.yaml').read_text()
+
+
+def test_own_replay_exits_1_on_mismatch(headless, tmp_path, capsys, monkeypatch):
+    _, path = headless
+    import ladrc_follow.replay as R
+
+    real = R.load_recording
+
+    def perturbed(p):
+        rec = real(p)
+        rec.inputs['encoder_mm'] = rec.inputs['encoder_mm'] + 1e-9
+        return rec
+    monkeypatch.setattr(R, 'load_recording', perturbed)
+    assert ladrc(['replay', str(path), '--no-internals']) == 1
+    line = _json_line(capsys.readouterr().out)
+    assert line['mismatches'] > 0 and line['first_mismatch_tick'] is not None
+
+
+def test_missing_ticks_break_exact_replay_after_the_gap(headless):
+    _, path = headless
+    rec = load_recording(path)
+    gap_at = int(1.0 / rec.h_s)
+    keep = np.ones(rec.ticks.size, dtype=bool)
+    keep[gap_at:gap_at + 3] = False  # three ticks lost
+    cut = replace(rec, ticks=rec.ticks[keep], command=rec.command[keep],
+                  command_enable=rec.command_enable[keep],
+                  command_present=rec.command_present[keep],
+                  inputs={k: v[keep] for k, v in rec.inputs.items()},
+                  status={k: v[keep] for k, v in rec.status.items()})
+    s = compare(cut, replay(cut, record_internals=False))
+    assert s['missing_ticks'] == 3
+    assert s['exact_until_tick'] == gap_at - 1
+    assert s['mismatches'] == 0  # exact up to the gap
+    assert s['mismatches_after_gap'] > 0  # the controller skipped three ticks of dynamics
+
+
+def test_event_fields_map_to_the_command_arguments():
+    # Every command kind maps onto the controller's command signature (names and count).
+    ev = RecordedEvent(tick=0, kind=0, value_mm=1.25, delay_s=0.5, velocity_mm_s=30.0,
+                       accel_mm_s2=400.0, flag=True)
+    for kind, name in KIND_NAMES.items():
+        if name == 'parameters':
+            continue
+        got, kwargs = event_command(replace(ev, kind=kind))
+        assert got == name
+        assert set(kwargs) == set(COMMANDS[name])
+    assert event_command(replace(ev, kind=6))[1] == {
+        'target_gap_mm': 1.25, 'delay_s': 0.5, 'velocity_mm_s': 30.0, 'accel_mm_s2': 400.0}
+    assert event_command(replace(ev, kind=4))[1] == {'on': True}
+    assert event_command(replace(ev, kind=5))[1] == {'offset_mm': 1.25, 'delay_s': 0.5}
+
+
+def test_set_overrides_are_checked(headless):
+    _, path = headless
+    rec = load_recording(path)
+    assert parse_set(['law.kp=12', 'follow.controller=pid']) == {
+        'law.kp': 12, 'follow.controller': 'pid'}
+    with pytest.raises(ReplayError, match='key=value'):
+        parse_set(['law.kp'])
+    with pytest.raises(ReplayError, match='unknown parameter law.kq'):
+        whatif_params(rec, overrides={'law.kq': 1.0})
+    with pytest.raises(ReplayError, match='h_s'):
+        whatif_params(rec, overrides={'h_s': 0.001})
+
+
+def _bad(argv: list[str], capsys, out=None) -> str:
+    code = ladrc(argv)
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert code == 2, (captured.out, err)
+    assert len(err.splitlines()) == 1 and 'Traceback' not in err, err
+    if out is not None:
+        assert not out.exists()
+        assert not any(p.name.endswith('.partial') for p in out.parent.iterdir())
+    return err
+
+
+def test_bad_input_gives_one_line(headless, tmp_path, capsys):
+    _, good = headless
+    out = tmp_path / 'out'
+    assert 'no such file' in _bad(['replay', str(tmp_path / 'missing'), '-o', str(out)],
+                                  capsys, out)
+    # truncated storage file
+    trunc = tmp_path / 'trunc'
+    trunc.mkdir()
+    (trunc / 'metadata.yaml').write_bytes((good / 'metadata.yaml').read_bytes())
+    data = (good / 'run_0.mcap').read_bytes()
+    (trunc / 'run_0.mcap').write_bytes(data[:len(data) // 2])
+    _bad(['replay', str(trunc), '-o', str(out)], capsys, out)
+    # a foreign file
+    junk = tmp_path / 'junk.mcap'
+    junk.write_bytes(b'\x89MCAP0\r\n' + bytes(range(200)))
+    _bad(['replay', str(junk)], capsys)
+    # no follow/status
+    nostatus = tmp_path / 'nostatus'
+    with BagWriter(nostatus, split_s=None) as w:
+        w.write('run/scenario', 1, string_msg('name: x\n'))
+    assert "no 'follow/status'" in _bad(['replay', str(nostatus), '-o', str(out)], capsys, out)
+    # no parameter set (no PARAMETERS event, empty run/parameters)
+    result = run(scenario_from_dict({**SCENARIO, 'duration_s': 0.1,
+                                     'timeline': SCENARIO['timeline'][:1]}),
+                 FollowController(ControllerParams()))
+    noparams = tmp_path / 'noparams'
+    write_run_bag(result, noparams, '', 'name: x\n')
+    assert 'no parameter set' in _bad(['replay', str(noparams), '-o', str(out)], capsys, out)
+    # unknown parameter keys, in --set and in --params
+    assert 'law.kq' in _bad(['replay', str(good), '--set', 'law.kq=3', '-o', str(out)],
+                            capsys, out)
+    pfile = tmp_path / 'p.yaml'
+    pfile.write_text('law: {kq: 3.0}\n')
+    assert 'kq' in _bad(['replay', str(good), '--params', str(pfile), '-o', str(out)],
+                        capsys, out)
+    assert 'cannot read' in _bad(['replay', str(good), '--params', str(tmp_path / 'nope.yaml'),
+                                  '-o', str(out)], capsys, out)
+    # an existing output is never overwritten
+    out.mkdir()
+    assert 'exists already' in _bad(['replay', str(good), '--set', 'law.kp=3', '-o', str(out)],
+                                    capsys)
