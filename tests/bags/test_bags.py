@@ -123,7 +123,7 @@ def test_split_writer_lists_every_complete_segment(tmp_path, storage, monkeypatc
         seqs = [r.deserialize(d, c.msgtype).seq for c, _, d in r.messages(conns)]
         qos = conns[0].ext.offered_qos_profiles[0]
     assert seqs == list(range(50))
-    assert (qos.depth, qos.reliability.name, qos.durability.name) == (100, 'RELIABLE',
+    assert (qos.depth, qos.reliability.name, qos.durability.name) == (100, 'BEST_EFFORT',
                                                                      'VOLATILE')
     with open_bag(path) as b:
         assert b.seq_loss('axis/velocity_command') == (50, 0)

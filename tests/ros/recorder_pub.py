@@ -28,7 +28,7 @@ def main() -> None:
     duration_s = float(sys.argv[1])
     rclpy.init()
     node = rclpy.create_node('recorder_test_pub')
-    fast = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    fast = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)  # as the nodes
     latched = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
     run_q = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

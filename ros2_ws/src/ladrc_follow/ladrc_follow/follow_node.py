@@ -16,6 +16,7 @@ ROS context goes down).
 
 from __future__ import annotations
 
+import gc
 import math
 import signal
 import sys
@@ -56,6 +57,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from . import qos
+from .cdr import CdrPacker
 from .control.follow import FollowController, TickInput
 from .control.params import (
     DEFAULT_NODE_NAME,
@@ -86,20 +88,10 @@ RANGES = {
     'law.wc_rad_s': (0.0, 1.0e4),
 }
 
-STATUS_TYPES = FollowStatus.get_fields_and_field_types()
-_CONVERT = {'double': float, 'float': float, 'boolean': bool, 'string': str}
-
-
-def _converter(ros_type: str):
-    if ros_type in _CONVERT:
-        return _CONVERT[ros_type]
-    if 'int' in ros_type:
-        return int
-    raise TypeError(ros_type)
-
-
-INTERNAL_CONVERTERS = {name: _converter(t) for name, t in STATUS_TYPES.items()
-                       if t != 'std_msgs/Header'}
+def _defaults(packer: CdrPacker) -> list[Any]:
+    """Zero values of a packer's leaf fields, of the right Python type each."""
+    zero = {'string': '', 'bool': False, 'float32': 0.0, 'float64': 0.0}
+    return [zero.get(kind, 0) for _, kind in packer.fields]
 
 
 def flatten(d: dict, prefix: str = '') -> dict[str, Any]:
@@ -201,9 +193,19 @@ class FollowNode(Node):
         self.create_service(GradientFollow, 'follow/gradient_follow', self._srv_gradient)
         self.create_service(ResetFault, 'follow/reset_fault', self._srv_reset)
 
-        # Reused message objects: publish() serializes at once, so refilling them is safe.
-        self._cmd = VelocityCommand()
-        self._status = FollowStatus()
+        # The tick publishes pre-serialized CDR (ladrc_follow.cdr): filling rclpy messages
+        # field by field cost more than the whole control step. One value list per message,
+        # refilled in place each tick.
+        self._cmd_packer = CdrPacker('ladrc_msgs/msg/VelocityCommand')
+        self._cmd_vals = _defaults(self._cmd_packer)
+        self._st_packer = CdrPacker('ladrc_msgs/msg/FollowStatus')
+        self._st_vals = _defaults(self._st_packer)
+        ix = self._st_packer.index
+        self._ix = ix
+        self._ix_inputs = [ix[n] for n in (
+            't_s', 'gap_seq', 'gap_mm', 'gap_valid', 'gap_status', 'gap_stamp_s', 'encoder_seq',
+            'encoder_mm', 'encoder_stamp_s', 'drive_enabled', 'drive_fault', 'velocity_mm_s',
+            'period_us', 'compute_us', 'input_age_us', 'overrun')]
         self.tick_index = 0
         # Loop statistics (ring of periods for the 1 Hz percentiles).
         self._ring = np.zeros(4096)
@@ -287,20 +289,18 @@ class FollowNode(Node):
             self.controller.set_params(self.params)
             self._publish_parameters()
         t_s = (now_ns - self._t0_ns) * 1e-9
-        tick = TickInput(t_s, self.gap_mm, self.gap_valid, self.gap_stamp_s, self.enc_mm,
-                         self.enc_stamp_s, self.drive_enabled, self.drive_fault,
-                         self.gap_status)
-        velocity = self.controller.step(tick)
-        enable = bool(self.controller.enable)
+        gap_stamp_s, enc_stamp_s = self.gap_stamp_s, self.enc_stamp_s
+        tick = TickInput(t_s, self.gap_mm, self.gap_valid, gap_stamp_s, self.enc_mm,
+                         enc_stamp_s, self.drive_enabled, self.drive_fault, self.gap_status)
+        controller = self.controller
+        velocity = controller.step(tick)
+        enable = bool(controller.enable)
+        velocity = float(velocity) if enable else 0.0
 
-        cmd = self._cmd
         sec, nsec = divmod(now_ns, 1_000_000_000)
-        cmd.header.stamp.sec = sec
-        cmd.header.stamp.nanosec = nsec
-        cmd.seq = self.tick_index
-        cmd.velocity_mm_s = float(velocity) if enable else 0.0
-        cmd.enable = enable
-        self.pub_cmd.publish(cmd)
+        cmd = self._cmd_vals  # header.stamp.sec, .nanosec, .frame_id, seq, velocity, enable
+        cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, velocity, enable
+        self.pub_cmd.publish(self._cmd_packer.pack(cmd))
         compute_ns = time.monotonic_ns() - start_mono
 
         period_ns = start_mono - self._last_start_ns if self._last_start_ns else self.period_ns
@@ -309,45 +309,30 @@ class FollowNode(Node):
         overrun = period_ns > 2 * self.period_ns
         if overrun:
             self.overruns += 1
-        age_us = (t_s - min(self.gap_stamp_s, self.enc_stamp_s)) * 1e6
+        age_us = (t_s - min(gap_stamp_s, enc_stamp_s)) * 1e6
         if age_us > self._age_max_us:
             self._age_max_us = age_us
 
-        st = self._status
-        st.header.stamp.sec = sec
-        st.header.stamp.nanosec = nsec
-        st.tick = self.tick_index
-        for name, value in self.controller.internals().items():
-            setattr(st, name, INTERNAL_CONVERTERS[name](value))
-        st.t_s = t_s
-        st.gap_seq = self.gap_seq
-        st.gap_mm = float(self.gap_mm)
-        st.gap_valid = bool(self.gap_valid)
-        st.gap_status = int(self.gap_status)
-        st.gap_stamp_s = float(self.gap_stamp_s)
-        st.encoder_seq = self.enc_seq
-        st.encoder_mm = float(self.enc_mm)
-        st.encoder_stamp_s = float(self.enc_stamp_s)
-        st.drive_enabled = bool(self.drive_enabled)
-        st.drive_fault = bool(self.drive_fault)
-        st.velocity_mm_s = cmd.velocity_mm_s
-        st.period_us = period_ns * 1e-3
-        st.compute_us = compute_ns * 1e-3
-        st.input_age_us = age_us if math.isfinite(age_us) else -1.0
-        st.overrun = overrun
-        self.pub_status.publish(st)
+        st = self._st_vals
+        ix = self._ix
+        for name, value in controller.internals().items():
+            st[ix[name]] = value
+        st[0], st[1], st[3] = sec, nsec, self.tick_index
+        values = (t_s, self.gap_seq, self.gap_mm, self.gap_valid, self.gap_status, gap_stamp_s,
+                  self.enc_seq, self.enc_mm, enc_stamp_s, self.drive_enabled, self.drive_fault,
+                  velocity, period_ns * 1e-3, compute_ns * 1e-3,
+                  age_us if math.isfinite(age_us) else -1.0, overrun)
+        for i, value in zip(self._ix_inputs, values, strict=True):
+            st[i] = value
+        self.pub_status.publish(self._st_packer.pack(st))
         self.tick_index += 1
 
     def publish_zero(self, reason: str) -> None:
         """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C)."""
-        cmd = self._cmd
         sec, nsec = divmod(time.time_ns(), 1_000_000_000)
-        cmd.header.stamp.sec = sec
-        cmd.header.stamp.nanosec = nsec
-        cmd.seq = self.tick_index
-        cmd.velocity_mm_s = 0.0
-        cmd.enable = False
-        self.pub_cmd.publish(cmd)
+        cmd = self._cmd_vals
+        cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, 0.0, False
+        self.pub_cmd.publish(self._cmd_packer.pack(cmd))
         self.tick_index += 1
         self.get_logger().info(f'zero velocity commanded: {reason}')
 
@@ -509,6 +494,10 @@ def main(argv: list[str] | None = None) -> int:
         executor.add_node(node)
         node.get_logger().info(f'following loop started ({node.loop_mode}, '
                                f'{1.0 / node.h_s:.0f} Hz)')
+        # Everything alive now (node, controller, generated code) leaves the collector's
+        # reach: a full collection must not stall the 2 kHz loop.
+        gc.collect()
+        gc.freeze()
         try:
             run_loop(node, executor, running)
         except ExternalShutdownException:

@@ -7,8 +7,8 @@ segments, see bag.py for the crash-safety design). The node spins an ``EventsExe
 ``spin_once`` loop: the notes' measurement (SingleThreadedExecutor dropped up to 20-30 % of
 2 kHz messages; EventsExecutor received all).
 
-QoS matches the publishers (bag.TOPIC_QOS): RELIABLE keep-last 100 on the 2 kHz topics, RELIABLE
-+ TRANSIENT_LOCAL on ``follow/events`` (depth 100) and ``run/*`` (depth 1), default on
+QoS matches the publishers (bag.TOPIC_QOS): BEST_EFFORT keep-last 100 on the 2 kHz topics,
+RELIABLE + TRANSIENT_LOCAL on ``follow/events`` (depth 100) and ``run/*`` (depth 1), default on
 ``/diagnostics``. The same profiles go into the bag as ``offered_qos_profiles``.
 
 Parameters: ``output`` (bag folder; default ``bags/run_<date>_<time>``), ``storage``

@@ -172,12 +172,17 @@ class Waviness:
     def evaluate(self, t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Height over ``t_s`` (uniformly sampled), drawn from ``rng``."""
         n = t_s.size
-        white = rng.standard_normal(n)
         if n < 30 or self.rms_mm == 0.0:
+            rng.standard_normal(n)  # same draws as below: the rest of the run stays the same
             return np.zeros(n)
         fs = 1.0 / (t_s[1] - t_s[0])
+        # Filter a longer record and keep its middle: a low cutoff has a time constant of
+        # ~fs/cutoff samples, far beyond sosfiltfilt's edge padding, and the edges would carry
+        # a start-up transient many times the requested RMS (a 2 mm sheet jump at t = 0).
+        pad = int(3.0 * fs / self.cutoff_hz)
+        white = rng.standard_normal(n + 2 * pad)
         sos = signal.butter(4, self.cutoff_hz, btype='low', fs=fs, output='sos')
-        z = signal.sosfiltfilt(sos, white)
+        z = signal.sosfiltfilt(sos, white)[pad:pad + n]
         z -= z.mean()
         rms = math.sqrt(float(np.mean(z * z)))
         return z * (self.rms_mm / rms) if rms > 0.0 else z
