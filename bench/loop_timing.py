@@ -109,9 +109,7 @@ def closed_loop(seconds: float, loop: str) -> dict[str, float]:
         probe.spin_for(2.0)  # approach; then measure
         first = len(log)
         missed0 = float(diags.get('missed_gap_samples', 0))
-        t0 = time.monotonic()
         probe.spin_for(seconds)
-        wall = time.monotonic() - t0
         last = len(log)
         probe.spin_for(1.2)  # one more diagnostics message
         missed = float(diags.get('missed_gap_samples', 0)) - missed0
