@@ -22,23 +22,40 @@ S = FollowStatus
 
 def _status(m: FollowStatus) -> tuple:
     return (m.tick, m.state, m.followed, m.target_gap_mm, m.gap_seq, m.velocity_mm_s,
-            m.fault_reason)
+            m.fault_reason, m.t_s, m.gap_stamp_s)
 
 
-# The timeouts bring-up uses for simulated runs (three 2 kHz Python processes share 2 cores:
-# docs/follow-node.md); the product defaults are 10 ms.
-TIMEOUT_S = SIM_TIMEOUT_S
+# Stale-input limit and drive watchdog for these runs. The product defaults are 10 ms; three
+# 2 kHz Python processes sharing two cores (sim, controller, this test) see scheduling stalls of
+# tens of ms (docs/follow-node.md), so the follow test uses a limit that a stall cannot reach
+# and the kill test the one bring-up uses for simulated runs.
+FOLLOW_TIMEOUT_S = 0.3
+KILL_TIMEOUT_S = SIM_TIMEOUT_S
+
+
+def _axis(ros_context, timeout_s: float):
+    nodes = NodeProcesses()
+    nodes.start('follow', 'ladrc_follow', 'follow_node', '-p',
+                f'follow.stale_timeout_s:={timeout_s}')
+    nodes.start('sim', 'ladrc_sim', 'sim_node', '-p',
+                f'scenario:={SCENARIOS / "follow_sine.yaml"}', '-p', 'wait_for_controller_s:=0.0',
+                '-p', f'watchdog_timeout_s:={timeout_s}')
+    return nodes, Probe(ros_context)
 
 
 @pytest.fixture()
 def axis(ros_context):
-    nodes = NodeProcesses()
-    nodes.start('follow', 'ladrc_follow', 'follow_node', '-p',
-                f'follow.stale_timeout_s:={TIMEOUT_S}')
-    nodes.start('sim', 'ladrc_sim', 'sim_node', '-p',
-                f'scenario:={SCENARIOS / "follow_sine.yaml"}', '-p', 'wait_for_controller_s:=0.0',
-                '-p', f'watchdog_timeout_s:={TIMEOUT_S}')
-    probe = Probe(ros_context)
+    nodes, probe = _axis(ros_context, FOLLOW_TIMEOUT_S)
+    try:
+        yield nodes, probe
+    finally:
+        probe.close()
+        nodes.close()
+
+
+@pytest.fixture()
+def axis_tight(ros_context):
+    nodes, probe = _axis(ros_context, KILL_TIMEOUT_S)
     try:
         yield nodes, probe
     finally:
@@ -74,27 +91,15 @@ def test_follow_ladrc_parameters_and_stop(axis):
 
     res = probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0))
     assert res.accepted, res.message
-    assert probe.spin_until(lambda: status[-1][1] == S.STATE_LADRC, 20.0), (
-        status[-1], [s for i, s in enumerate(status) if i and s[1] != status[i - 1][1]])
-    states = [s[1] for s in status]
-    seen = [st for i, st in enumerate(states) if i == 0 or st != states[i - 1]]
-    assert seen[-4:] == [S.STATE_LOCKING, S.STATE_PREINTERPOLATE, S.STATE_PID,
-                         S.STATE_LADRC] or seen[-3:] == [S.STATE_PREINTERPOLATE, S.STATE_PID,
-                                                         S.STATE_LADRC]
-    assert any(s[2] for s in status)  # followed before LADRC took over
+    assert probe.spin_until(lambda: status[-1][1] == S.STATE_LADRC, 20.0), status[-1]
 
-    # Holds the gap on the sine sheet (0.3 mm, 1 Hz from t = 4 s of the scenario).
+    # Hold the gap on the sine sheet (0.3 mm, 1 Hz from t = 4 s of the scenario). The test
+    # decodes the recorded messages only after the run: decoding thousands of them while the
+    # nodes run would take a core from the 2 kHz processes under test.
     probe.spin_until(lambda: truth[-1][0] > 2000 * 6.0, 30.0)
     n = len(truth)
     probe.spin_for(2.0)
-    window = np.array([g for _, g in truth[n:]])
-    assert window.size > 1000
-    # Headless, this scenario holds |e| < 0.02 mm; live, three 2 kHz Python processes share two
-    # cores and a scheduling stall of tens of ms shows up as a short error peak (bench/
-    # loop_timing.py measures the stalls), so the test bounds the 95th percentile and the RMS.
-    err = np.abs(window - 1.0)
-    assert np.percentile(err, 95) < 0.1
-    assert np.sqrt(np.mean(err ** 2)) < 0.1
+    m = len(truth)
     assert status[-1][1] == S.STATE_LADRC
 
     # A valid parameter change applies (and is logged as an event with the new set) ...
@@ -117,10 +122,27 @@ def test_follow_ladrc_parameters_and_stop(axis):
     probe.spin_for(0.1)
     assert cmds[-1] == (0.0, False)
     assert nodes.interrupt('follow') == 0
+    nodes.kill('sim')
+
+    # The state sequence of the start: LOCKING -> PREINTERPOLATE -> PID -> LADRC, followed first.
+    states = [s[1] for s in status]
+    seen = [st for i, st in enumerate(states) if i == 0 or st != states[i - 1]]
+    assert seen[:5] == [S.STATE_IDLE, S.STATE_LOCKING, S.STATE_PREINTERPOLATE, S.STATE_PID,
+                        S.STATE_LADRC], seen
+    first_ladrc = states.index(S.STATE_LADRC)
+    assert status[first_ladrc][2]  # LADRC takes over at the tick the follow is reached
+    assert not any(s[2] for s in status[:first_ladrc])
+    # The gap held on the sine: headless this scenario holds |e| < 0.02 mm; live, a scheduling
+    # stall on the shared cores shows up as a short error peak, so the test bounds the 95th
+    # percentile and the RMS (bench/loop_timing.py measures the stalls).
+    err = np.abs(np.array([g for _, g in truth[n:m]]) - 1.0)
+    assert err.size > 1000
+    assert np.percentile(err, 95) < 0.1, [s for s in seen if s != S.STATE_LADRC]
+    assert np.sqrt(np.mean(err ** 2)) < 0.1
 
 
-def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis):
-    nodes, probe = axis
+def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis_tight):
+    nodes, probe = axis_tight
     status = probe.record(FollowStatus, 'follow/status', keep=_status)
     cmds = probe.record(VelocityCommand, 'axis/velocity_command',
                         keep=lambda m: (m.seq, m.velocity_mm_s, m.enable))
@@ -133,13 +155,12 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis):
 
     nodes.kill('sim')
     assert probe.spin_until(lambda: status[-1][1] == S.STATE_FAULT, 5.0), status[-1]
-    # ticks from the first tick that saw no new sample to the fault
-    last_seq = status[-1][4]
-    first_stale = next(i for i, s in enumerate(status) if s[4] == last_seq)
-    first_fault = next(i for i, s in enumerate(status) if s[1] == S.STATE_FAULT)
-    # the stale limit in ticks, plus a margin for the sim's last samples still in flight
-    assert status[first_fault][0] - status[first_stale][0] <= TIMEOUT_S / 0.0005 + 20
-    assert status[first_fault][6]  # a readable reason
+    # The fault comes once the last sample is older than the limit: its tick time minus the
+    # last sample's stamp is the limit plus at most a few ticks (and scheduling slack).
+    fault = next(s for s in status if s[1] == S.STATE_FAULT)
+    age_at_fault_s = fault[7] - fault[8]
+    assert KILL_TIMEOUT_S - 0.002 < age_at_fault_s < KILL_TIMEOUT_S + 0.03, age_at_fault_s
+    assert 'stale input' in fault[6]  # a readable reason
     probe.spin_for(0.05)
     assert all(v == 0.0 for _, v, _ in cmds[-20:])
     assert not cmds[-1][2]

@@ -32,13 +32,15 @@ def test_sim_publishes_moves_and_stops_on_watchdog(sim):
     gaps = probe.record(CapacitiveHeight, 'axis/capacitive_height')
     fbs = probe.record(AxisFeedback, 'axis/feedback')
     truth = probe.record(SimTruth, 'sim/truth')
-    assert probe.spin_until(lambda: len(gaps) > 400, 30.0), nodes.log('sim')
+    assert probe.spin_until(lambda: len(gaps) > 400 and gaps[-1].seq - gaps[0].seq > 4000,
+                            30.0), nodes.log('sim')
 
-    # ~2 kHz: the sample stamps advance 0.5 ms per seq on average (stamps, not test timing).
+    # ~2 kHz: over 2 s the sample stamps advance 0.5 ms per seq on average (stamps, not the
+    # test's timing; the sim catches up after a stall, so the average holds).
     first, last = gaps[0], gaps[-1]
     span_s = ((last.header.stamp.sec - first.header.stamp.sec)
               + (last.header.stamp.nanosec - first.header.stamp.nanosec) * 1e-9)
-    assert len(gaps) >= 0.95 * (last.seq - first.seq + 1)  # (the probe is no real-time reader)
+    # (how many of them this best-effort test reader got says nothing about the sim)
     assert span_s / (last.seq - first.seq) == pytest.approx(0.0005, rel=0.2)
     # the reading is the true gap (no noise in this scenario): 5 mm above a flat sheet
     assert gaps[-1].valid and gaps[-1].gap_mm == pytest.approx(5.0, abs=0.01)
