@@ -287,7 +287,7 @@ def _run_replay(a: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
-# ---- placeholders -------------------------------------------------------------------------
+# ---- the subcommands ----------------------------------------------------------------------
 # name -> (help, add arguments, run). Extend here.
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
                           Callable[[argparse.Namespace], int]]] = {
@@ -312,7 +312,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """Return the ``ladrc`` argument parser with one subparser per :data:`COMMANDS` entry."""
     parser = _Parser(prog='ladrc', description='LADRC height-follow tools: headless '
-                     'simulation, bag reports and CSV export.')
+                     'simulation, bag replay, reports, CSV export and the quality suite.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True,
                                 parser_class=_Parser)
     for name, (help_text, add, _) in COMMANDS.items():
