@@ -14,7 +14,7 @@ import tempfile
 import time
 from typing import Callable
 
-from ladrc_follow.bringup import executable_path
+from ladrc_follow.bringup import executable_path, interrupt_process
 import rclpy
 from rclpy.experimental import EventsExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -50,15 +50,7 @@ class NodeProcesses:
         return (self.logdir / f'{name}.log').read_text(errors='replace')
 
     def interrupt(self, name: str, timeout_s: float = 10.0) -> int:
-        proc = self.procs[name]
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-        return proc.returncode
+        return interrupt_process(self.procs[name], timeout_s)
 
     def kill(self, name: str) -> None:
         proc = self.procs[name]

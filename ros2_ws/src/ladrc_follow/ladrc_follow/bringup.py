@@ -145,15 +145,20 @@ class Bringup:
             proc = self.procs.get(name)
             if proc is None:
                 continue
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=timeout_s)
-                except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                    proc.wait()
-            codes[name] = proc.returncode
+            codes[name] = interrupt_process(proc, timeout_s)
         return codes
+
+
+def interrupt_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
+    """SIGINT a node process (it commands zero and shuts down); SIGKILL its group if it hangs."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return proc.returncode
 
 
 def main(argv: list[str] | None = None) -> int:
