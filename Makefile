@@ -3,7 +3,7 @@
 
 # A live simulated run (sim + controller + recorder) ending in a bag and a report.
 demo:
-	scripts/in-env python -m ladrc_follow.demo
+	scripts/in-env python -m ladrc_tools.bringup.demo
 
 
 # Lint (ruff: flake8 + pep257 rule sets, the ROS Python conventions), then every test.

@@ -24,12 +24,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_follow'))
 
 from ladrc_follow.control.ladrc import LADRC  # noqa: E402
-from ladrc_follow.control.params import ControllerParams, KalmanConfig  # noqa: E402
+from ladrc_follow.control.params import ControllerParams, KalmanParams  # noqa: E402
 import numpy as np  # noqa: E402
 
 
 def params() -> ControllerParams:
-    return replace(ControllerParams(), kalman=KalmanConfig(enabled=True))
+    return replace(ControllerParams(), kalman=KalmanParams(enabled=True))
 
 
 def scalar_step_us(repeats: int = 7, number: int = 50000, fused: bool = True) -> float:

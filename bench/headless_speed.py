@@ -1,7 +1,7 @@
 """Headless closed-loop speed: simulated seconds per wall-clock second (realtime_x).
 
-Runs one scenario (default ``showcase``, 25 s) through ``ladrc_sim.runner.run`` at 2 kHz with
-the most complete controller ``ladrc_follow.control`` offers:
+Runs one scenario (default ``showcase``, 25 s) through ``ladrc_sim.headless.runner.run`` at
+2 kHz with the most complete controller ``ladrc_follow.control`` offers:
 
 1. ``ladrc_follow.control.follow.FollowController`` (the state machine), if present;
 2. else ``ladrc_follow.control.ladrc.LADRC`` behind a small adapter (start_follow resets it
@@ -28,8 +28,8 @@ for pkg in ('ladrc_follow', 'ladrc_sim'):
     if src not in sys.path:
         sys.path.insert(0, src)
 
-from ladrc_sim.runner import run  # noqa: E402
-from ladrc_sim.scenario import load_scenario  # noqa: E402
+from ladrc_sim.headless.runner import run  # noqa: E402
+from ladrc_sim.headless.scenario import load_scenario  # noqa: E402
 
 
 class PD:

@@ -1,7 +1,7 @@
 """Shared pytest set-up: test the source tree of the pure-Python packages.
 
 The ROS integration tests start the installed console scripts as real processes;
-everything else imports ``ladrc_follow`` and ``ladrc_sim`` straight from
+everything else imports ``ladrc_follow``, ``ladrc_sim`` and ``ladrc_tools`` straight from
 ``ros2_ws/src`` so a test always sees the code under review.
 """
 
@@ -11,7 +11,8 @@ import sys
 ROOT = Path(__file__).resolve().parents[1]
 # tests/support: helpers shared by test modules (pytest runs with --import-mode=importlib,
 # which does not put test folders on sys.path).
-for path in (ROOT / 'ros2_ws' / 'src' / 'ladrc_follow', ROOT / 'ros2_ws' / 'src' / 'ladrc_sim',
+SRC = ROOT / 'ros2_ws' / 'src'
+for path in (SRC / 'ladrc_follow', SRC / 'ladrc_sim', SRC / 'ladrc_tools',
              ROOT / 'tests' / 'support'):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))

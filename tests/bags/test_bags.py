@@ -7,7 +7,9 @@ import json
 import math
 import os
 
-from ladrc_follow.bag import (
+from ladrc_sim.headless.runner import run
+from ladrc_sim.headless.scenario import scenario_from_dict
+from ladrc_tools.bags.bag import (
     BagError,
     BagWriter,
     RowPacker,
@@ -17,10 +19,8 @@ from ladrc_follow.bag import (
     string_msg,
     write_run_bag,
 )
-from ladrc_follow.cli import main as ladrc
-from ladrc_follow.typestore import ladrc_typestore
-from ladrc_sim.runner import run
-from ladrc_sim.scenario import scenario_from_dict
+from ladrc_tools.bags.typestore import ladrc_typestore
+from ladrc_tools.cli import main as ladrc
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
@@ -100,7 +100,7 @@ def test_seq_counting():
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_split_writer_lists_every_complete_segment(tmp_path, storage, monkeypatch):
     clock = [0.0]
-    monkeypatch.setattr('ladrc_follow.bag.time.monotonic', lambda: clock[0])
+    monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
     path = tmp_path / 'split'
     w = BagWriter(path, storage=storage, split_s=1.0)
     packer = RowPacker('ladrc_msgs/msg/VelocityCommand')

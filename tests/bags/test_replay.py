@@ -12,11 +12,13 @@ from dataclasses import replace
 import json
 import math
 
-from ladrc_follow.bag import BagWriter, string_msg, write_run_bag
-from ladrc_follow.cli import main as ladrc
 from ladrc_follow.control.follow import COMMANDS, FollowController
 from ladrc_follow.control.params import ControllerParams, dump_params
-from ladrc_follow.replay import (
+from ladrc_sim.headless.runner import run
+from ladrc_sim.headless.scenario import scenario_from_dict
+from ladrc_tools.bags.bag import BagWriter, string_msg, write_run_bag
+from ladrc_tools.cli import main as ladrc
+from ladrc_tools.offline.replay import (
     KIND_NAMES,
     RecordedEvent,
     ReplayError,
@@ -27,8 +29,6 @@ from ladrc_follow.replay import (
     replay,
     whatif_params,
 )
-from ladrc_sim.runner import run
-from ladrc_sim.scenario import scenario_from_dict
 import numpy as np
 import pytest
 
@@ -145,7 +145,7 @@ def test_another_parameter_set_mismatches(headless, capsys, tmp_path):
 
 def test_own_replay_exits_1_on_mismatch(headless, tmp_path, capsys, monkeypatch):
     _, path = headless
-    import ladrc_follow.replay as R
+    import ladrc_tools.offline.replay as R
 
     real = R.load_recording
 

@@ -6,7 +6,7 @@ from ladrc_follow.control.ladrc import LADRC
 from ladrc_follow.control.params import (
     ControllerParams,
     ESOParams,
-    KalmanConfig,
+    KalmanParams,
     LawParams,
     LimitParams,
 )
@@ -125,7 +125,7 @@ def _params(order, disc='euler', kalman=False, compensator=False, **eso_kw):
         eso = ESOParams(order=2, discretization=disc, gains='bandwidth', w0_rad_s=300.0,
                         b0=1.0 / 0.008, compensator=compensator, **eso_kw)
         law = LawParams(form=3, gains='bandwidth', wc_rad_s=40.0)
-    return ControllerParams(eso=eso, law=law, kalman=KalmanConfig(enabled=kalman),
+    return ControllerParams(eso=eso, law=law, kalman=KalmanParams(enabled=kalman),
                             limits=LimitParams(v_max_mm_s=150.0, a_max_mm_s2=4000.0))
 
 

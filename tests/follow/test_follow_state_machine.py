@@ -9,13 +9,11 @@ from ladrc_follow.control.follow import (
     INTERNALS_KEYS,
     FollowController,
     FollowParams,
-    TickInput,
-    follow_problems,
 )
-from ladrc_follow.control.params import ControllerParams, check
-from ladrc_sim import runner
-from ladrc_sim.models.axis import Axis, AxisParams
-from ladrc_sim.scenario import scenario_from_dict
+from ladrc_follow.control.params import ControllerParams, check, params_from_dict, validate
+from ladrc_sim.headless import runner
+from ladrc_sim.headless.scenario import scenario_from_dict
+from loops import Loop
 import numpy as np
 import pytest
 
@@ -60,45 +58,6 @@ def transitions(states) -> list[tuple[int, int]]:
     s = np.asarray(states)
     idx = [0] + list(np.flatnonzero(np.diff(s)) + 1)
     return [(int(i), int(s[i])) for i in idx]
-
-
-class Loop:
-    """A minimal closed loop (sim axis model, ideal sensor) whose inputs a hook can corrupt."""
-
-    def __init__(self, ctrl: FollowController, gap0_mm: float = 1.0, sheet=None) -> None:
-        self.c = ctrl
-        self.sheet = sheet or (lambda t: 0.0)
-        self.axis = Axis(AxisParams(), self.sheet(0.0) + gap0_mm, H)
-        self.i = 0
-        self.u: list[float] = []
-        self.states: list[int] = []
-        self.gap: list[float] = []
-        self.enable: list[bool] = []
-
-    def run(self, n: int, hook=None) -> None:
-        for _ in range(n):
-            t = self.i * H
-            pos = self.axis.position_mm
-            gap = pos - self.sheet(t)
-            d = dict(t_s=t, gap_mm=gap, gap_valid=True, gap_stamp_s=t, encoder_mm=pos,
-                     encoder_stamp_s=t, drive_enabled=True, drive_fault=False, gap_status=0)
-            if hook is not None:
-                hook(self.i, d)
-            u = self.c.step(TickInput(**d))
-            self.u.append(u)
-            self.states.append(int(self.c.state))
-            self.gap.append(gap)
-            self.enable.append(self.c.enable)
-            self.axis.step(u, d['drive_enabled'], d['drive_fault'])
-            self.i += 1
-
-    def run_until(self, pred, max_ticks: int, hook=None) -> int:
-        for k in range(max_ticks):
-            if pred():
-                return k
-            self.run(1, hook)
-        raise AssertionError(f'condition not reached within {max_ticks} ticks '
-                             f'(state {self.c.state.name}, reason {self.c.fault_reason!r})')
 
 
 @pytest.fixture
@@ -276,8 +235,9 @@ def test_miss_panel_holds_then_faults(following_ladrc):
         d['gap_status'] = 1  # STATUS_OUT_OF_RANGE
         d['gap_mm'] = 20.0
 
-    loop.run(5, off_sheet)  # 2.5 ms < miss_panel_s: command held, still LADRC
-    assert int(c.state) == 4 and loop.u[-5:] == [u_before] * 5
+    loop.run(5, off_sheet)  # 2.5 ms < miss_panel_s: still LADRC; an upward command is held,
+    # motion toward the sheet stops at once (safety: no downward command on invalid data)
+    assert int(c.state) == 4 and loop.u[-5:] == [max(u_before, 0.0)] * 5
     loop.run(10, off_sheet)
     assert int(c.state) == 5 and 'miss-panel' in c.fault_reason
     loop.run(100, off_sheet)
@@ -530,15 +490,15 @@ def test_internals_in_pid_state_show_the_reinitialised_ladrc():
 
 def test_follow_params_validation_messages():
     with pytest.raises(ValueError, match='controller'):
-        FollowParams.from_dict({'controller': 'fuzzy'})
+        params_from_dict({'follow': {'controller': 'fuzzy'}})
     with pytest.raises(ValueError, match="unknown key 'follow.speed'"):
-        FollowParams.from_dict({'speed': 1.0})
+        params_from_dict({'follow': {'speed': 1.0}})
     with pytest.raises(ValueError, match='collision_gap_mm'):
-        FollowParams.from_dict({'collision_gap_mm': 0.5})
+        params_from_dict({'follow': {'collision_gap_mm': 0.5}})
     assert 'stale_timeout_s' in ' '.join(FollowParams(stale_timeout_s=-1.0).problems())
-    # whole-set checks (follow_problems, for params.EXTRA_VALIDATORS)
+    # whole-set checks (the follow section against the PID's tolerance)
     bad = ControllerParams(follow=FollowParams(followed_wide_tol_mm=0.01))
-    assert 'followed_wide_tol_mm' in ' '.join(follow_problems(bad))
+    assert 'followed_wide_tol_mm' in ' '.join(validate(bad))
     with pytest.raises(ValueError, match='followed_wide_tol_mm'):
         FollowController(bad)
     check(ControllerParams())
@@ -546,7 +506,6 @@ def test_follow_params_validation_messages():
         check(bad)  # the set's own validation sees the follow section too
     with pytest.raises(ValueError, match='follow'):
         FollowController(ControllerParams(follow=FollowParams(controller=1)))
-    assert FollowParams.from_dict(FollowParams().to_dict()) == FollowParams()
 
 
 def test_set_params_takes_effect_at_next_tick_bumplessly(following_ladrc):

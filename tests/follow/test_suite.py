@@ -6,8 +6,8 @@ import csv
 import json
 import math
 
-from ladrc_follow import suite
-from ladrc_follow.cli import main
+from ladrc_tools.cli import main
+from ladrc_tools.offline import suite
 import numpy as np
 import pytest
 

@@ -6,9 +6,9 @@ from msgfill import cdr_padding, fill_rclpy, to_rosbags
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-from ladrc_follow.cdr import CdrPacker  # noqa: E402
-from ladrc_follow.typestore import ladrc_typestore, msg_definitions  # noqa: E402
+from ladrc_follow.node.cdr import CdrPacker, flat_fields  # noqa: E402
 import ladrc_msgs.msg  # noqa: E402
+from ladrc_tools.bags.typestore import ladrc_typestore, msg_definitions  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 
 MESSAGES = sorted(name.rsplit('/', 1)[1] for name in msg_definitions())
@@ -34,3 +34,39 @@ def test_packer_matches_rosbags_and_rclpy(name, salt):
     padding = cdr_padding(store, typename, to_rosbags(msg, store, typename))
     assert len(ours) == len(theirs)
     assert all(ours[i] == theirs[i] for i in range(len(ours)) if i not in padding)
+
+
+def _rosbags_flat(store, typename: str, prefix: str = '') -> list[tuple[str, str]]:
+    out = []
+    for name, (node, detail) in store.fielddefs[typename][1]:
+        if node.name == 'NAME':
+            out += _rosbags_flat(store, detail, f'{prefix}{name}.')
+        else:
+            out.append((f'{prefix}{name}', detail[0]))
+    return out
+
+
+@pytest.mark.parametrize('name', MESSAGES)
+def test_layout_from_rclpy_classes_equals_the_msg_files(name):
+    # flat_fields reads the rclpy-generated classes; rosbags parses the .msg files
+    typename = f'ladrc_msgs/msg/{name}'
+    assert flat_fields(typename) == _rosbags_flat(ladrc_typestore(), typename)
+
+
+@pytest.mark.parametrize(('typename', 'fields'), [
+    ('std_msgs/msg/Header', [('stamp.sec', 'int32'), ('stamp.nanosec', 'uint32'),
+                             ('frame_id', 'string')]),
+    ('std_msgs/msg/Bool', [('data', 'bool')]),
+    ('std_msgs/msg/Byte', [('data', 'byte')]),
+    ('std_msgs/msg/Char', [('data', 'uint8')]),  # .msg char is an IDL uint8
+    ('std_msgs/msg/Float32', [('data', 'float32')]),
+])
+def test_primitive_names(typename, fields):
+    assert flat_fields(typename) == fields
+
+
+@pytest.mark.parametrize('typename', ['std_msgs/msg/Float64MultiArray',  # sequences
+                                      'std_msgs/msg/NoSuchMessage', 'not_a_type'])
+def test_unsupported_types_are_refused(typename):
+    with pytest.raises(ValueError):
+        CdrPacker(typename)

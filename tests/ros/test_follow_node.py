@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-from ladrc_follow.bringup import SIM_TIMEOUT_S  # noqa: E402
 from ladrc_msgs.msg import FollowEvent, FollowStatus, SimTruth, VelocityCommand  # noqa: E402
 from ladrc_msgs.srv import StartFollow, StopFollow  # noqa: E402
+from ladrc_tools.bringup.bringup import SIM_TIMEOUT_S  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import GetParameters, SetParameters  # noqa: E402
 from rosnodes import LATCHED, NodeProcesses, Probe  # noqa: E402
@@ -25,11 +25,11 @@ def _status(m: FollowStatus) -> tuple:
             m.fault_reason, m.t_s, m.gap_stamp_s)
 
 
-# Stale-input limit and drive watchdog for these runs. The product defaults are 10 ms; three
-# 2 kHz Python processes sharing two cores (sim, controller, this test) see scheduling stalls of
-# tens of ms (docs/follow-node.md), so the follow test uses a limit that a stall cannot reach
-# and the kill test the one bring-up uses for simulated runs.
-FOLLOW_TIMEOUT_S = 0.3
+# Stale-input limit and drive watchdog for these runs. The product defaults are 10 ms (stale) and
+# 5 ms (watchdog); three 2 kHz Python processes sharing two cores (sim, controller, this test)
+# see scheduling stalls of tens of ms (docs/follow-node.md), so the follow test uses the largest
+# limit the parameter schema allows and the kill test the one bring-up uses for simulated runs.
+FOLLOW_TIMEOUT_S = 0.1
 KILL_TIMEOUT_S = SIM_TIMEOUT_S
 
 

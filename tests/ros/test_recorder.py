@@ -13,11 +13,11 @@ import time
 import pytest
 
 pytest.importorskip('rclpy')
-from ladrc_follow.bag import SEQ_FIELD, TOPIC_TYPES, open_bag  # noqa: E402
+from ladrc_tools.bags.bag import SEQ_FIELD, TOPIC_TYPES, open_bag  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-RECORDER = ROOT / 'ros2_ws' / 'install' / 'ladrc_follow' / 'lib' / 'ladrc_follow' / 'recorder'
+RECORDER = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools' / 'recorder'
 PUB = Path(__file__).with_name('recorder_pub.py')
 
 pytestmark = pytest.mark.ros

@@ -18,15 +18,15 @@ import yaml
 
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from ladrc_follow.replay import load_recording  # noqa: E402
 from ladrc_msgs.msg import FollowEvent, FollowStatus  # noqa: E402
 from ladrc_msgs.srv import StartFollow, StopFollow  # noqa: E402
+from ladrc_tools.offline.replay import load_recording  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import GetParameters, SetParameters  # noqa: E402
 from rosnodes import LATCHED, NodeProcesses, Probe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-LADRC = ROOT / 'ros2_ws' / 'install' / 'ladrc_follow' / 'lib' / 'ladrc_follow' / 'ladrc'
+LADRC = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools' / 'ladrc'
 SCENARIO = Path(__file__).parent / 'scenarios' / 'follow_sine.yaml'
 pytestmark = pytest.mark.ros
 S = FollowStatus
@@ -61,11 +61,12 @@ def test_live_bag_replays_bit_for_bit(ros_context, tmp_path):
     probe = None
     try:
         # recorder first, so the bag holds the run from the follow node's first ticks
-        nodes.start('recorder', 'ladrc_follow', 'recorder', '-p', f'output:={bag}')
-        # Timeouts relaxed (stale input 10 -> 200 ms, drive watchdog 10 -> 200 ms) so a loaded
-        # 2-core machine still reaches LADRC; the replay is what this test checks.
+        nodes.start('recorder', 'ladrc_tools', 'recorder', '-p', f'output:={bag}')
+        # Timeouts relaxed (stale input 10 -> 100 ms, the schema's largest; drive watchdog
+        # 5 -> 200 ms) so a loaded 2-core machine still reaches LADRC; the replay is what this
+        # test checks.
         nodes.start('follow', 'ladrc_follow', 'follow_node', '-p',
-                    'follow.stale_timeout_s:=0.2')
+                    'follow.stale_timeout_s:=0.1')
         nodes.start('sim', 'ladrc_sim', 'sim_node', '-p', f'scenario:={SCENARIO}',
                     '-p', 'wait_for_controller_s:=0.0', '-p', 'watchdog_timeout_s:=0.2')
         probe = Probe(ros_context)

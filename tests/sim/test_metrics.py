@@ -2,7 +2,7 @@
 
 import math
 
-from ladrc_sim.metrics import (
+from ladrc_sim.headless.metrics import (
     compute_metrics,
     count_rising,
     followed_index,
@@ -86,7 +86,7 @@ def test_limit_flags_bitmask_from_internals():
 
 
 def test_travel_ratio_is_one_when_calibrated_and_below_at_the_edge():
-    from ladrc_sim.metrics import travel_ratio
+    from ladrc_sim.headless.metrics import travel_ratio
     from ladrc_sim.models.sensor import edge_reading_mm
     g = np.linspace(10.0, 1.0, 200)
     np.testing.assert_allclose(travel_ratio(g, g)[2:], 1.0)  # nan until 0.05 mm of travel

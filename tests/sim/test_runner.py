@@ -2,8 +2,8 @@
 
 import math
 
-from ladrc_sim.runner import Controller, TickInput, run, schedule
-from ladrc_sim.scenario import load_scenario, scenario_from_dict
+from ladrc_sim.headless.runner import Controller, TickInput, run, schedule
+from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict
 import numpy as np
 import pytest
 
@@ -57,7 +57,10 @@ def scenario(**over):
 
 def test_tick_input_fields_are_the_agreed_contract():
     assert TickInput._fields == ('t_s', 'gap_mm', 'gap_valid', 'gap_stamp_s', 'encoder_mm',
-                                 'encoder_stamp_s', 'drive_enabled', 'drive_fault')
+                                 'encoder_stamp_s', 'drive_enabled', 'drive_fault', 'gap_status')
+    # the controller's own copy of the contract (the sim must not import the controller)
+    from ladrc_follow.control.follow import TickInput as ControllerTickInput
+    assert ControllerTickInput._fields == TickInput._fields
     assert isinstance(PD(), Controller)
 
 

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ladrc_sim.scenario import (
+from ladrc_sim.headless.scenario import (
     COMMANDS,
     ScenarioError,
     list_scenarios,

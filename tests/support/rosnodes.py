@@ -14,7 +14,7 @@ import tempfile
 import time
 from typing import Callable
 
-from ladrc_follow.bringup import executable_path, interrupt_process
+from ladrc_tools.bringup.bringup import executable_path, interrupt_process
 import rclpy
 from rclpy.experimental import EventsExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

@@ -1,5 +1,3 @@
-from glob import glob
-
 from setuptools import find_packages, setup
 
 package_name = 'ladrc_follow'
@@ -11,8 +9,6 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*.yaml')),
-        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -22,10 +18,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'follow_node = ladrc_follow.follow_node:main',
-            'recorder = ladrc_follow.recorder_node:main',
-            'bringup = ladrc_follow.bringup:main',
-            'ladrc = ladrc_follow.cli:main',
+            'follow_node = ladrc_follow.node.follow_node:main',
         ],
     },
 )

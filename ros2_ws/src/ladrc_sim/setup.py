@@ -10,11 +10,11 @@ setup(
     packages=find_packages(exclude=['test']),
     # The scenario library ships inside the Python package (importlib.resources finds it) and
     # under share/ for users who look for it the ROS way.
-    package_data={'ladrc_sim': ['scenarios/*.yaml']},
+    package_data={'ladrc_sim.headless': ['scenarios/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/scenarios', glob('ladrc_sim/scenarios/*.yaml')),
+        ('share/' + package_name + '/scenarios', glob('ladrc_sim/headless/scenarios/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -24,7 +24,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'sim_node = ladrc_sim.sim_node:main',
+            'sim_node = ladrc_sim.node.sim_node:main',
         ],
     },
 )

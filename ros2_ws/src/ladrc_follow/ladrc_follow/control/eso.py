@@ -28,11 +28,10 @@ and ``ext_rate_limit`` (clamp of its change per step); ``None`` switches each of
 
 from __future__ import annotations
 
-from math import comb
+from math import comb, factorial
 from typing import Sequence
 
 import numpy as np
-from scipy.linalg import expm
 
 from .nonlinear import fal
 from .ops import ARRAY, SCALAR
@@ -111,17 +110,24 @@ def euler_stability_limit(n: int, betas: Sequence[float] | None = None) -> float
 
 
 def zoh_matrices(n: int, b0: float, h_s: float):
-    """Exact ZOH model of the integrator chain: ``(Phi, Gamma)`` with Phi_ij = h^(j−i)/(j−i)!."""
+    """Exact ZOH model of the integrator chain: ``(Phi, Gamma)`` with Phi_ij = h^(j−i)/(j−i)!.
+
+    A is nilpotent (a shift), so e^(Ah) = Σ_k (Ah)^k/k! ends at k = n and
+    Γ = Σ_k A^k h^(k+1)/(k+1)! · B, both exactly.
+    """
     _check_order(n)
     m = n + 1
     a = np.eye(m, k=1)
     b = np.zeros(m)
     b[n - 1] = b0
-    big = np.zeros((m + 1, m + 1))
-    big[:m, :m] = a * h_s
-    big[:m, m] = b * h_s
-    ex = expm(big)
-    return ex[:m, :m], ex[:m, m]
+    phi = np.zeros((m, m))
+    gamma = np.zeros(m)
+    a_k = np.eye(m)
+    for k in range(m):
+        phi += a_k * (h_s ** k / factorial(k))
+        gamma += a_k @ b * (h_s ** (k + 1) / factorial(k + 1))
+        a_k = a_k @ a
+    return phi, gamma
 
 
 def zoh_gains_from_poles(n: int, poles_z: Sequence[complex], h_s: float) -> tuple[float, ...]:

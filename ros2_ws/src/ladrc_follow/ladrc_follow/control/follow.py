@@ -36,15 +36,15 @@ import math
 import numbers
 from typing import Any, NamedTuple
 
-from .follow_params import FollowParams, follow_params_of, follow_problems
+from .follow_params import FollowParams
 from .interp import Interpolator, InterpParams
 from .ladrc import LADRC
-from .params import ControllerParams
+from .params import ControllerParams, check
 from .pid import FollowPID
 
 __all__ = [
-    'FollowState', 'FollowParams', 'FollowController', 'TickInput', 'follow_params_of',
-    'follow_problems', 'GAP_STATUS_OK', 'GAP_STATUS_OUT_OF_RANGE', 'GAP_STATUS_COLLISION',
+    'FollowState', 'FollowParams', 'FollowController', 'TickInput', 'GAP_STATUS_OK',
+    'GAP_STATUS_OUT_OF_RANGE', 'GAP_STATUS_COLLISION',
     'GAP_STATUS_FAULT', 'LIMIT_VELOCITY', 'LIMIT_ACCELERATION', 'LIMIT_ESO_STATE',
     'INTERNALS_KEYS', 'COMMANDS',
 ]
@@ -133,13 +133,13 @@ class _Build(NamedTuple):
 def _build(params: ControllerParams | None, follow: FollowParams | None,
            mode: str | None = None) -> _Build:
     params = params if params is not None else ControllerParams()
-    fp = follow if follow is not None else follow_params_of(params)
+    if follow is not None:
+        params = replace(params, follow=follow)
     if mode is not None:
-        fp = replace(fp, controller=mode)
-    problems = fp.problems() or follow_problems(replace(params, follow=fp))
-    if problems:
-        raise ValueError('invalid follow parameters: ' + '; '.join(problems))
-    ladrc = LADRC(params)  # validates the whole set (ParameterError is a ValueError)
+        params = replace(params, follow=replace(params.follow, controller=mode))
+    check(params)  # the whole set (ParameterError is a ValueError)
+    fp = params.follow
+    ladrc = LADRC(params)
     return _Build(params, fp, ladrc, FollowPID(params.pid, params.h_s),
                   Interpolator(params.interp, params.h_s))
 
@@ -189,6 +189,14 @@ class FollowController:
         self._dir = 1.0
         self._enc0 = 0.0
         self._surf_ref = 0.0
+        # trust no reading beyond the encoder: the sample used last, frozen-value detection
+        self._used_gstamp = math.nan
+        self._acc_gap = math.nan   # the last reading accepted, and the encoder then
+        self._acc_enc = math.nan
+        self._same_n = 0
+        self._same_enc0 = math.nan
+        self.counts = {'predicted': 0, 'frozen': 0, 'invalid': 0, 'nonfinite': 0}
+        """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
     # ------------------------------------------------------------------ parameters
     def _install(self, b: _Build) -> None:
@@ -221,6 +229,8 @@ class FollowController:
         self._invalid_max = _ticks(f.invalid_timeout_s, h)
         self._miss_max = _ticks(f.miss_panel_s, h)
         self._edge = f.edge_drop_mm
+        self._frozen_n = f.frozen_ticks
+        self._frozen_mm = f.frozen_travel_mm
         self._c_edge = h / (f.edge_ref_tau_s + h)  # backward-Euler low-pass, as pid.py
         ext = p.eso.disturbance_limit
         self._ext_limit = ext if ext > 0.0 else math.inf
@@ -511,6 +521,8 @@ class FollowController:
     def _fault(self, reason: str, retract: bool = False) -> float:
         self._stop(_FAULT)
         self._fault_reason = reason
+        if self._u < 0.0:
+            self._u = 0.0  # safety: motion toward the sheet stops at once, upward may ramp
         if retract:
             f = self.follow_params
             lim = self.params.limits
@@ -539,6 +551,10 @@ class FollowController:
     # ------------------------------------------------------------------ output
     def _limit(self, u_c: float) -> float:
         """Limit the output: ±v, then ±a·h against the applied command (law.apply_limits)."""
+        if u_c - u_c != 0.0:  # nan or ±inf from a law: no limiter may hide it
+            self.counts['nonfinite'] += 1
+            return self.fail(f'non-finite command ({u_c!r}) in state '
+                             f'{FollowState(self._state).name}')
         v, du, u_prev = self._vlim, self._dulim, self._u
         us = v if u_c > v else (-v if u_c < -v else u_c)
         lo, hi = u_prev - du, u_prev + du
@@ -568,7 +584,29 @@ class FollowController:
 
     # ------------------------------------------------------------------ tick
     def step(self, tick: tuple) -> float:
-        """One tick: return the velocity command in mm/s (+ = up, widens the gap)."""
+        """One tick: return the velocity command in mm/s (+ = up, widens the gap).
+
+        Every exception inside the tick and every non-finite command ends in FAULT with a zero
+        command (:meth:`fail`): the caller always gets a finite number.
+        """
+        try:
+            u = self._step(tick)
+        except Exception as exc:  # noqa: BLE001 - any bug must end in a zero command
+            return self.fail(f'exception in the controller tick: {type(exc).__name__}: {exc}')
+        if u - u != 0.0:
+            self.counts['nonfinite'] += 1
+            return self.fail(f'non-finite command ({u!r}) in state '
+                             f'{FollowState(self._state).name}')
+        return u
+
+    def fail(self, reason: str) -> float:
+        """Enter FAULT with a zero command now (exceptions, non-finite values); return 0.0."""
+        self._stop(_FAULT)
+        self._fault_reason = reason
+        self._retracting = False
+        return self._out_zero()
+
+    def _step(self, tick: tuple) -> float:
         self._tick += 1
         if self._pending_build is not None:
             self._swap_params()
@@ -585,6 +623,12 @@ class FollowController:
         if st == _IDLE:
             return self._ramp0()
         if st == _FAULT:
+            if not self._retracting and not drive_bad and (
+                    status == GAP_STATUS_COLLISION or (gap - gap == 0.0 and gap <= self._coll)):
+                # collision evidence retracts in every state, FAULT included
+                return self._fault(f'collision while in FAULT ({self._fault_reason}): gap '
+                                   f'reading {gap:.3f} mm, status {status}; retracting '
+                                   f'{self.follow_params.retract_distance_mm:g} mm', True)
             return self._fault_out(drive_bad)
         if st == _LOCKING:
             return self._locking(t, gap, valid, gstamp, enc, estamp, den, dfault, status)
@@ -609,6 +653,26 @@ class FollowController:
             return self._fault(f'collision: gap reading {gap:.3f} mm <= limit {self._coll:g} mm; '
                                f'retracting {self.follow_params.retract_distance_mm:g} mm', True)
         self._invalid_ticks = self._miss_ticks = 0
+        if gstamp == self._used_gstamp and self._acc_gap == self._acc_gap:
+            # no new sample since the last tick: the law never runs twice on one reading; the
+            # encoder increment predicts the gap (notes §4, the Kalman predict step)
+            self.counts['predicted'] += 1
+            gap = self._acc_gap + (enc - self._acc_enc)
+        else:
+            self._used_gstamp = gstamp
+            if gap == self._acc_gap:
+                # bit-identical to the last new sample: a real reading has noise, so a run of
+                # them while the encoder moves is a frozen sensor with fresh stamps
+                self._same_n += 1
+                moved = enc - self._same_enc0
+                if self._same_n >= self._frozen_n and abs(moved) > self._frozen_mm:
+                    self.counts['frozen'] += 1
+                    return self._fault(f'frozen gap reading: {self._same_n + 1} identical '
+                                       f'samples ({gap:.4f} mm) while the encoder moved '
+                                       f'{moved:+.3f} mm')
+            else:
+                self._same_n, self._same_enc0 = 0, enc
+            self._acc_gap, self._acc_enc = gap, enc
         if self._gradients and self._gradients[0][0] <= self._tick:
             _, gt, gv, ga = self._gradients.pop(0)
             self._target = gt
@@ -740,11 +804,17 @@ class FollowController:
                     f'status {status}' if status else 'not finite')
                 return self._fault(f'gap reading invalid ({what}) for '
                                    f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
+        self.counts['invalid'] += 1
+        if self._u < 0.0:
+            self._u = 0.0  # motion toward the sheet stops at once on invalid data
         if self._state == _PREINTERP:
-            # the plan needs no reading: keep braking/moving as planned
+            # the plan needs no reading to brake, but it only closes in on valid data
             self._src = 1
-            return self._limit(self._interp.step())
-        # zero-order hold of the command; PID/LADRC are not stepped on invalid data
+            v = self._interp.step()
+            if v < 0.0:
+                v = self._interp.velocity_mm_s = 0.0
+            return self._limit(v)
+        # hold an upward command; PID/LADRC are not stepped on invalid data
         self._flags = 0
         return self._u
 

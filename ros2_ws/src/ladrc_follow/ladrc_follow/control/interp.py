@@ -28,25 +28,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from .schema import Section, param
+
 
 @dataclass(frozen=True)
-class InterpParams:
-    """Limits of the approach move (mm/s, mm/s²) and the tick period (s)."""
+class InterpParams(Section):
+    """Limits of the approach move (``ControllerParams.interp``)."""
+
+    PREFIX = 'interp.'
 
     # 60, not 100: half off the sheet the reading moves up to 2x the gap (sensor edge model),
     # so the plan, made in reading units, needs ~2x the braking margin; at 100 mm/s the
     # edge_open_10_1 approach reached the 0.2 mm collision limit (docs/quality.md).
-    v_max_mm_s: float = 60.0
-    a_max_mm_s2: float = 2000.0
-
-    def problems(self) -> list[str]:
-        """Return readable reasons why these values cannot work (empty if valid)."""
-        out = []
-        if not self.v_max_mm_s > 0.0:
-            out.append(f'interp.v_max_mm_s must be > 0, got {self.v_max_mm_s!r}')
-        if not self.a_max_mm_s2 > 0.0:
-            out.append(f'interp.a_max_mm_s2 must be > 0, got {self.a_max_mm_s2!r}')
-        return out
+    v_max_mm_s: float = param(60.0, 'mm/s', 'speed limit of the approach move',
+                              gt=0.0, le=1000.0, seed='notes §3.5 Interp_GoDistance')
+    a_max_mm_s2: float = param(2000.0, 'mm/s²', 'acceleration limit of the approach move',
+                               gt=0.0, le=1e6, seed='notes §3.5 Interp_GoDistance')
 
 
 def stop_velocity(distance_mm: float, dv_mm_s: float, h_s: float) -> float:

@@ -17,38 +17,29 @@ from dataclasses import dataclass
 import math
 
 from .ops import SCALAR
+from .schema import Section, param
 
 
 @dataclass(frozen=True)
-class KalmanParams:
-    """Noise variances of the gap filter, in mm².
+class KalmanParams(Section):
+    """The gap filter (``ControllerParams.kalman``): switch and noise variances in mm².
 
     ``q_mm2``: per-tick process variance (sheet motion, encoder/structure error);
     ``r_mm2``: capacitive reading variance; ``p0_mm2``: variance assumed at (re)start.
+    Off by default, as in the seed's ``UpdateLADRC`` (the filter was tried for tube-ridge
+    chatter, not wired into the LADRC path).
     """
 
-    q_mm2: float = 1e-6
-    r_mm2: float = 1e-4
-    p0_mm2: float = 1e-4
+    PREFIX = 'kalman.'
 
-    def problems(self) -> list[str]:
-        """Readable reasons why these parameters cannot run; empty when valid."""
-        out = []
-        for name in ('q_mm2', 'r_mm2', 'p0_mm2'):
-            val = getattr(self, name)
-            if not isinstance(val, (int, float)) or not math.isfinite(val):
-                out.append(f'kalman.{name} = {val!r}: must be a finite number')
-        if out:
-            return out
-        if self.q_mm2 <= 0.0:
-            out.append(f'kalman.q_mm2 = {self.q_mm2}: must be > 0, otherwise the gain decays'
-                       ' to 0 and the filter stops listening to the sensor (encoder drift)')
-        if self.r_mm2 <= 0.0:
-            out.append(f'kalman.r_mm2 = {self.r_mm2}: must be > 0 (a noiseless sensor needs no'
-                       ' filter; the gain would be 1)')
-        if self.p0_mm2 < 0.0:
-            out.append(f'kalman.p0_mm2 = {self.p0_mm2}: a variance cannot be negative')
-        return out
+    enabled: bool = param(False, '', 'fuse the gap reading with encoder increments in the '
+                          'LADRC tick', seed='notes §4')
+    q_mm2: float = param(1e-6, 'mm²', 'process variance per tick (sheet motion)',
+                         gt=0.0, le=100.0, seed='notes §4')
+    r_mm2: float = param(1e-4, 'mm²', 'variance of the capacitive reading',
+                         gt=0.0, le=100.0, seed='notes §4')
+    p0_mm2: float = param(1e-4, 'mm²', 'variance assumed at (re)start',
+                          ge=0.0, le=100.0, seed='notes §4')
 
 
 def kalman_step(ops, x, p, z, dz_enc, q, r):

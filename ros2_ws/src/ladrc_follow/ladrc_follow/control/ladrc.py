@@ -24,30 +24,32 @@ Scalar and batch share :meth:`LADRC.step`: built with :meth:`LADRC.batch` the
 numeric parameters are numpy arrays (one row per parameter set) and the same
 arithmetic runs on arrays through the ``ARRAY`` ops.
 
-Performance: the tick is written once, in :mod:`tick` (``tick1``/``tick2``), as a
-composition of the shared step functions of td/eso/kalman/law. At construction
-:func:`fuse.build` turns it into ONE generated function per structure (order,
-discretization, compensator, Kalman, law form's use of the TD, peaking limits): the
-step functions' own source is inlined with :mod:`ast`, structural branches are folded,
-constant sub-expressions are evaluated once, and on the batch path intermediates are
-written into preallocated numpy buffers. No IEEE operation changes, so the generated
-tick equals the plain composition bit for bit (``LADRC(p, fused=False)`` runs the
-template as written; ``tests/core/test_fuse.py`` compares the two). Scalar ≈ 2.8 µs
-instead of ≈ 5 µs per tick (docs/control-law.md, "Performance").
+The tick is plain Python composing the step functions of :mod:`td`, :mod:`eso`,
+:mod:`kalman` and :mod:`law` (one implementation of each algorithm): :meth:`LADRC.step1` for
+order 1 and :meth:`LADRC.step2` for order 2, bound as ``step`` at construction. Numbers are
+read once per tick into locals; nothing is generated or rewritten at run time.
 """
 
 from __future__ import annotations
 
-from types import MethodType
 from typing import Sequence
 
 import numpy as np
 
-from .fuse import build
-from .law import form_weights
+from .eso import (
+    bandwidth_gains,
+    compensate1,
+    compensate2,
+    eso1_euler_step,
+    eso1_zoh_step,
+    eso2_euler_step,
+    eso2_zoh_step,
+)
+from .kalman import kalman_step
+from .law import apply_limits, form_weights, law1, law2
 from .ops import ARRAY, SCALAR
 from .params import ControllerParams, check, eso_gains, law_gains
-from .tick import SHARED_STEPS, factory_consts, literals, tick1, tick2
+from .td import td_step_firmware
 
 # values that must be equal in every row of a batch (they select the code path)
 _STRUCTURAL = ('order', 'discretization', 'compensator', 'kalman', 'use_td', 'ext_limit',
@@ -81,7 +83,6 @@ def _constants(p: ControllerParams) -> dict:
 
 
 def _cont_betas(p: ControllerParams) -> tuple[float, ...]:
-    from .eso import bandwidth_gains
     return bandwidth_gains(p.eso.order, p.eso.w0_rad_s)
 
 
@@ -94,10 +95,6 @@ class LADRC:
     order, discretization, compensator, Kalman on/off, law form's use of the TD,
     peaking limits on/off).
 
-    ``fused=False`` runs the tick template as written (one call per shared step
-    function) instead of the generated function: the reference of the equivalence
-    tests, same results bit for bit, about twice as slow.
-
     After :meth:`step` these attributes hold the internals of the tick: ``td_x1``,
     ``td_x2`` (r, ṙ), ``td_ddr`` (r̈), ``z1``, ``z2``, ``z3`` (order 2; 0 for order
     1), ``fused_gap_mm`` (= the reading without Kalman), ``kalman_p``, ``kalman_k``,
@@ -106,7 +103,7 @@ class LADRC:
     applied output, mm/s).
     """
 
-    def __init__(self, params: ControllerParams | None = None, *, fused: bool = True,
+    def __init__(self, params: ControllerParams | None = None, *,
                  _consts=None, _ops=None, _n=None) -> None:
         if _consts is None:
             self.params = check(params if params is not None else ControllerParams())
@@ -122,19 +119,24 @@ class LADRC:
         self.compensator = c['compensator']
         self.kalman_enabled = c['kalman']
         self.use_td = c['use_td']
-        self.fused = fused
+        self._euler = c['discretization'] == 'euler'
         self._b0 = c['b0']
         self._p0 = c['p0']
-        # one generated function per structure (cached), bound to this instance's numbers
-        tick = build(tick1 if self.order == 1 else tick2, SHARED_STEPS, literals(c),
-                     factory_consts(c), self.ops, fused=fused,
-                     scalar_ops=self.n is None, out_buffers=self.n if fused else None)
-        self._step = MethodType(tick, self)
-        self.step = self._step  # bind the generated tick directly (no dispatch per tick)
+        self._h = c['h']
+        self._gains = (c['g1'], c['g2'], c['g3'])
+        self._comp = (c['c1'], c['c2'])
+        self._law = (c['kp'], c['kd'], c['w_rate'], c['w_acc'])
+        self._limits = (c['v_max'], c['du_max'])
+        self._kalman_qr = (c['q'], c['r'])
+        self._td_a = c['ta']
+        self._td_b = c['tb']
+        self._ext = (c['ext_limit_v'] if c['ext_limit'] else None,
+                     c['ext_rate_limit_v'] if c['ext_rate_limit'] else None)
+        self.step = self.step1 if self.order == 1 else self.step2
         self.reset(0.0, 0.0, 0.0)
 
     @classmethod
-    def batch(cls, params: Sequence[ControllerParams], *, fused: bool = True) -> LADRC:
+    def batch(cls, params: Sequence[ControllerParams]) -> LADRC:
         """N controllers on numpy arrays, one row per parameter set, one code path."""
         params = [check(p) for p in params]
         if not params:
@@ -157,7 +159,7 @@ class LADRC:
                                     for j in range(len(val)))
             else:
                 consts[key] = np.array([r[key] for r in rows], dtype=float)
-        return cls(params, fused=fused, _consts=consts, _ops=ARRAY, _n=len(rows))
+        return cls(params, _consts=consts, _ops=ARRAY, _n=len(rows))
 
     # ------------------------------------------------------------------ state
     def _vec(self, x):
@@ -202,6 +204,97 @@ class LADRC:
 
         ``encoder_mm`` is the axis position (+ up); only its increment is used, by the
         Kalman filter (ignored when the filter is off; may be None then). The instance
-        binds this name to the order-specific implementation at construction.
+        binds this name to :meth:`step1` or :meth:`step2` at construction.
         """
-        return self._step(gap_mm, encoder_mm, target_mm)
+        return self.step1(gap_mm, encoder_mm, target_mm) if self.order == 1 else \
+            self.step2(gap_mm, encoder_mm, target_mm)
+
+    def _measure(self, gap_mm, encoder_mm):
+        """Gap the observer sees: the reading, or its Kalman fusion with Δenc (notes §4)."""
+        if not self.kalman_enabled:
+            self.fused_gap_mm = gap_mm
+            return gap_mm
+        enc_prev = self._enc_prev
+        dz = 0.0 if (enc_prev is None or encoder_mm is None) else encoder_mm - enc_prev
+        self._enc_prev = encoder_mm
+        q, r = self._kalman_qr
+        y, self.kalman_p, self.kalman_k = kalman_step(self.ops, self.fused_gap_mm,
+                                                      self.kalman_p, gap_mm, dz, q, r)
+        self.fused_gap_mm = y
+        return y
+
+    def _track(self, target_mm):
+        """Compound TD on the target (``CompELDTUpdate``): TDA, then TDB fed TDA's increment."""
+        ops, h = self.ops, self._h
+        a1, a2, b1, b2, v_prev = self._td
+        na1, na2 = td_step_firmware(ops, a1, a2, target_mm, target_mm - v_prev,
+                                    *self._td_a, h)
+        nb1, nb2 = td_step_firmware(ops, b1, b2, target_mm, na1 - a1, *self._td_b, h)
+        self._td = (na1, na2, nb1, nb2, target_mm)
+        self.td_x1, self.td_x2 = nb1, nb2
+        self.target_mm = target_mm
+        return nb1, nb2, b2
+
+    def _limit(self, u, u_prev):
+        """Saturation, then the acceleration limit against the applied previous output."""
+        u, self.saturated, self.rate_limited = apply_limits(self.ops, u, u_prev,
+                                                            *self._limits)
+        self.u = u
+        return u
+
+    def step1(self, gap_mm, encoder_mm, target_mm):
+        """Order-1 tick (seed ``CONTROLLER_ORDER 1``): Kalman, ESO, TD, law, limits."""
+        ops, h, b0 = self.ops, self._h, self._b0
+        g1, g2, _ = self._gains
+        u_prev = self.u
+        y = self._measure(gap_mm, encoder_mm)
+        # ESO fed the APPLIED previous output (UpdateLADRC: EsoUpdate(nCtrl, height))
+        z1o, z2o = self.z1, self.z2
+        eso_step = eso1_euler_step if self._euler else eso1_zoh_step
+        z1, z2 = eso_step(ops, z1o, z2o, y, u_prev, g1, g2, b0, h, *self._ext)
+        self.z1, self.z2 = z1, z2
+        if self.compensator:
+            # paper eq. 22: measurement and estimate of the same instant
+            c1 = self._comp[0]
+            if self._euler:
+                z1, z2 = compensate1(ops, z1o, z2o, y - z1o, c1)
+            else:
+                z1, z2 = compensate1(ops, z1, z2, y - z1, c1)
+        r, dr, _ = self._track(target_mm)
+        kp, _, w_rate, _ = self._law
+        if not self.use_td:  # form 2: the raw target, no reference derivative
+            r, dr = target_mm, 0.0
+        # notes §3.1: u = (kp(r − z1) + w·ṙ − z2) / b0
+        self.p_term, self.ff_term, self.u0, u = law1(ops, r, dr, z1, z2, kp, b0, w_rate)
+        self.u_unlimited = u
+        self.disturbance_term = -(z2 / b0)
+        return self._limit(u, u_prev)
+
+    def step2(self, gap_mm, encoder_mm, target_mm):
+        """Order-2 tick: as :meth:`step1` with z = (gap, gap rate, disturbance), r̈ = Δṙ/h."""
+        ops, h, b0 = self.ops, self._h, self._b0
+        g1, g2, g3 = self._gains
+        u_prev = self.u
+        y = self._measure(gap_mm, encoder_mm)
+        z1o, z2o, z3o = self.z1, self.z2, self.z3
+        eso_step = eso2_euler_step if self._euler else eso2_zoh_step
+        z1, z2, z3 = eso_step(ops, z1o, z2o, z3o, y, u_prev, g1, g2, g3, b0, h, *self._ext)
+        self.z1, self.z2, self.z3 = z1, z2, z3
+        if self.compensator:
+            c1, c2 = self._comp
+            if self._euler:
+                z1, z2, z3 = compensate2(ops, z1o, z2o, z3o, y - z1o, c1, c2)
+            else:
+                z1, z2, z3 = compensate2(ops, z1, z2, z3, y - z1, c1, c2)
+        r, dr, dr_prev = self._track(target_mm)
+        ddr = (dr - dr_prev) / h
+        self.td_ddr = ddr
+        kp, kd, w_rate, w_acc = self._law
+        if not self.use_td:
+            r, dr, ddr = target_mm, 0.0, 0.0
+        # notes §3.1: u = (kp(r − z1) + kd(w·ṙ − z2) + w·r̈ − z3) / b0
+        self.p_term, self.d_term, self.ff_term, self.u0, u = law2(
+            ops, r, dr, ddr, z1, z2, z3, kp, kd, b0, w_rate, w_acc)
+        self.u_unlimited = u
+        self.disturbance_term = -(z3 / b0)
+        return self._limit(u, u_prev)

@@ -1,8 +1,11 @@
 """The controller's parameter set: dataclasses, YAML load/dump, whole-set validation.
 
 One frozen dataclass per section (TD A/B, ESO, Kalman, law, limits, PID
-baseline, interpolation) inside :class:`ControllerParams`. Values are SI-like
-floats in mm, mm/s, mm/s², s (docs/control-law.md maps every seed integer).
+baseline, interpolation, follow state machine) inside :class:`ControllerParams`. Each
+parameter is declared once, with :func:`.schema.param` (type, default, unit, range,
+description, seed section, run-time changeable); the sections of the estimators and
+baselines are declared in their own modules. Values are SI-like floats in mm, mm/s, mm/s², s
+(docs/control-law.md maps every seed integer; docs/parameters.md is the generated table).
 
 YAML: plain nested sections, or the ROS 2 parameter-file layout
 ``<node>: {ros__parameters: {...}}`` with nested or dotted keys, so the node
@@ -12,9 +15,10 @@ optional features are switched by a mode string or a bool and "0 = off"
 
 Validation looks at the whole set (:func:`validate`) and reports every reason
 at once; :func:`check` raises :class:`ParameterError` carrying them all.
-Unknown keys are errors naming the key. The ``follow`` section is
-:class:`~.follow_params.FollowParams` (the follow state machine's), validated with the rest
-of the set; other modules can add whole-set checks to :data:`EXTRA_VALIDATORS`.
+Unknown keys are errors naming the key. Per-value checks come from the declarations;
+the checks that relate several parameters (:data:`CROSS_CHECKS`: discrete stability of the
+TDs and the observer, contradicting limits, the follow windows) are here, next to the set;
+other modules can add whole-set checks to :data:`EXTRA_VALIDATORS`.
 """
 
 from __future__ import annotations
@@ -27,17 +31,18 @@ from typing import Any, Callable
 import yaml
 
 from .eso import bandwidth_gains, euler_is_stable, zoh_gains
-from .follow_params import FollowParams, follow_problems
+from .follow_params import FollowParams
 from .interp import InterpParams
 from .kalman import KalmanParams
 from .pid import PIDParams
+from .schema import entries, field_problems, param
 from .td import TDA_FIRMWARE, TDB_FIRMWARE, TDParams
 
 __all__ = [
-    'ControllerParams', 'ESOParams', 'KalmanConfig', 'LawParams', 'LimitParams', 'PIDParams',
+    'ControllerParams', 'ESOParams', 'KalmanParams', 'LawParams', 'LimitParams', 'PIDParams',
     'InterpParams', 'TDParams', 'ParameterError', 'EXTRA_VALIDATORS', 'load_params',
     'params_from_dict', 'params_to_dict', 'dump_params', 'validate', 'check', 'eso_gains',
-    'law_gains', 'DEFAULT_NODE_NAME', 'FollowParams',
+    'law_gains', 'DEFAULT_NODE_NAME', 'FollowParams', 'parameter_file', 'CROSS_CHECKS',
 ]
 
 DEFAULT_NODE_NAME = 'ladrc_follow'
@@ -47,69 +52,67 @@ DEFAULT_NODE_NAME = 'ladrc_follow'
 class ESOParams:
     """Extended state observer (notes §3).
 
-    ``order``: plant model order (1: z = (gap, disturbance mm/s), the seed's
-    ``CONTROLLER_ORDER 1``; 2: z = (gap, gap rate, disturbance mm/s²)).
-    ``gains``: 'explicit' uses ``betas`` (order + 1 values, continuous-time
-    β's as in the seed); 'bandwidth' derives them from ``w0_rad_s``. The 'zoh'
-    discretization always derives its gains from ``w0_rad_s`` and ``h_s``.
-    ``b0``: input gain (order 1: mm/s per mm/s command, 1 in SI for the seed's
-    integer 100; order 2: plant gain / T1 in 1/s). Peaking limits (notes §3.4):
-    ``disturbance_limit`` clamps |z_{n+1}|, ``disturbance_rate_limit`` clamps its
-    change per tick; 0 = off.
+    ``order`` 1: z = (gap, disturbance mm/s), the seed's ``CONTROLLER_ORDER 1``; 2: z = (gap,
+    gap rate, disturbance mm/s²). ``gains`` 'explicit' uses ``betas`` (order + 1 continuous-time
+    β's as in the seed), 'bandwidth' derives them from ``w0_rad_s``; the 'zoh' discretization
+    always derives its gains from ``w0_rad_s`` and ``h_s``. ``b0``: order 1 mm/s per mm/s of
+    command (1 in SI for the seed's integer 100); order 2 plant gain / T1 in 1/s.
     """
 
-    order: int = 1
-    discretization: str = 'euler'
-    gains: str = 'explicit'
-    w0_rad_s: float = 60.0
-    betas: tuple[float, ...] = (180.0, 10800.0)
-    b0: float = 1.0
-    compensator: bool = False
-    disturbance_limit: float = 0.0
-    disturbance_rate_limit: float = 0.0
-
-
-@dataclass(frozen=True)
-class KalmanConfig:
-    """Height Kalman filter (notes §4): fuses the gap reading with encoder increments.
-
-    Off by default, as in the seed's ``UpdateLADRC`` (the filter was tried for
-    tube-ridge chatter, not wired into the LADRC path).
-    """
-
-    enabled: bool = False
-    q_mm2: float = 1e-6
-    r_mm2: float = 1e-4
-    p0_mm2: float = 1e-4
-
-    def kalman_params(self) -> KalmanParams:
-        """Return the estimator's own parameter object."""
-        return KalmanParams(q_mm2=self.q_mm2, r_mm2=self.r_mm2, p0_mm2=self.p0_mm2)
+    order: int = param(1, '', 'plant model order of the observer (1: gap, disturbance; '
+                       '2: gap, gap rate, disturbance)', choices=(1, 2),
+                       seed='notes §3 CONTROLLER_ORDER')
+    discretization: str = param('euler', '', "'euler': the firmware's EsoUpdate; 'zoh': "
+                                'current estimator with poles at exp(−ω0·h)',
+                                choices=('euler', 'zoh'), seed='notes §3.3')
+    gains: str = param('explicit', '', "'explicit': eso.betas; 'bandwidth': from eso.w0_rad_s",
+                       choices=('explicit', 'bandwidth'), seed='notes §3.3 GetLADRCParam')
+    w0_rad_s: float = param(60.0, 'rad/s', 'observer bandwidth ω0 (bandwidth gains, zoh)',
+                            gt=0.0, le=20000.0, seed='notes §3.3')
+    betas: tuple[float, ...] = param((180.0, 10800.0), '1/s^i', 'explicit observer gains '
+                                     'β1..β(order+1) (seed (3ω, 3ω²) at ω = 60)',
+                                     gt=0.0, le=1e10, seed='notes §3.3')
+    b0: float = param(1.0, 'order 1: 1; order 2: 1/s', 'input gain b0 (order 1: axis mm/s per '
+                      'mm/s of command; order 2: plant gain / T1)',
+                      gt=0.0, le=1e5, seed='notes §1, §3')
+    compensator: bool = param(False, '', 'feed-forward compensation of the observation error',
+                              seed='paper eq. 22')
+    disturbance_limit: float = param(0.0, 'mm/s or mm/s²', 'clamp of |disturbance estimate|; '
+                                     '0 = off', ge=0.0, le=1e7, seed='notes §3.4')
+    disturbance_rate_limit: float = param(0.0, 'per tick', 'clamp of the disturbance '
+                                          "estimate's change per tick; 0 = off",
+                                          ge=0.0, le=1e7, seed='notes §3.4')
 
 
 @dataclass(frozen=True)
 class LawParams:
     """Control law (notes §3.1 forms 1–3; see :mod:`law`).
 
-    ``gains``: 'explicit' uses ``kp``/``kd``; 'bandwidth' derives them from
-    ``wc_rad_s`` (order 1: kp = ωc; order 2: kp = ωc², kd = 2ωc). Units: order 1
-    kp in 1/s (kd unused); order 2 kp in 1/s², kd in 1/s. Seed: KP = 100 with
-    ``/10`` → kp = 10 /s.
+    ``gains`` 'explicit' uses ``kp``/``kd``; 'bandwidth' derives them from ``wc_rad_s`` (order
+    1: kp = ωc; order 2: kp = ωc², kd = 2ωc). Order 1 kp in 1/s (kd unused); order 2 kp in
+    1/s², kd in 1/s. Seed: KP = 100 with ``/10`` → kp = 10 /s.
     """
 
-    form: int = 3
-    gains: str = 'explicit'
-    kp: float = 10.0
-    kd: float = 0.0
-    wc_rad_s: float = 10.0
+    form: int = param(3, '', 'law form: 1 TD r, ṙ; 2 raw target; 3 TD with feed-forward '
+                      '(seed)', choices=(1, 2, 3), seed='notes §3.1')
+    gains: str = param('explicit', '', "'explicit': law.kp, law.kd; 'bandwidth': from "
+                       'law.wc_rad_s', choices=('explicit', 'bandwidth'), seed='notes §3.1')
+    kp: float = param(10.0, '1/s (order 2: 1/s²)', 'proportional gain', gt=0.0, le=1e7,
+                      seed='notes §3.1 KP')
+    kd: float = param(0.0, '1/s', 'derivative gain (order 2 only)', ge=0.0, le=1e4,
+                      seed='notes §3.1 KD')
+    wc_rad_s: float = param(10.0, 'rad/s', 'controller bandwidth ωc (bandwidth gains)',
+                            gt=0.0, le=2000.0, seed='notes §3.1')
 
 
 @dataclass(frozen=True)
 class LimitParams:
-    """Output limits of the LADRC: saturation and per-tick change a_max·h (``UpdateLADRC``)."""
+    """Output limits of every command: saturation and per-tick change a_max·h (``UpdateLADRC``)."""
 
-    v_max_mm_s: float = 150.0
-    a_max_mm_s2: float = 4000.0
+    v_max_mm_s: float = param(150.0, 'mm/s', 'output saturation ±v_max', gt=0.0, le=1000.0,
+                              seed='notes §3.4 UpdateLADRC')
+    a_max_mm_s2: float = param(4000.0, 'mm/s²', 'acceleration limit: per-tick change a_max·h',
+                               gt=0.0, le=1e6, seed='notes §3.4 UpdateLADRC')
 
 
 # TD defaults: ``CompELDTInit`` ints TDA (22, 13, 30, 15), TDB (12, 40, 100, 0) after td.py's
@@ -126,11 +129,12 @@ def _tdb() -> TDParams:
 class ControllerParams:
     """The whole parameter set of the follow controller."""
 
-    h_s: float = 0.0005
+    h_s: float = param(0.0005, 's', 'controller tick period (2 kHz)', ge=1e-5, le=0.01,
+                       runtime=False, seed='notes SAMPLE_PERIOD 2000')
     td_a: TDParams = field(default_factory=_tda)
     td_b: TDParams = field(default_factory=_tdb)
     eso: ESOParams = field(default_factory=ESOParams)
-    kalman: KalmanConfig = field(default_factory=KalmanConfig)
+    kalman: KalmanParams = field(default_factory=KalmanParams)
     law: LawParams = field(default_factory=LawParams)
     limits: LimitParams = field(default_factory=LimitParams)
     pid: PIDParams = field(default_factory=PIDParams)
@@ -178,71 +182,69 @@ def law_gains(p: ControllerParams) -> tuple[float, float]:
 # ---------------------------------------------------------------------------
 # dict / YAML conversion
 
-def _hints(cls) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
+def _number(value: Any, key: str, errors: list[str]) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        hint = ''
+        if isinstance(value, str):
+            try:
+                float(value)
+                hint = ' (YAML reads 1e-3 as text: write 1.0e-3)'
+            except ValueError:
+                pass
+        errors.append(f'{key} = {value!r}: must be a number{hint}')
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        errors.append(f'{key} = {value}: too large for a float')
+        return None
 
 
 def _convert(value: Any, tp: Any, key: str, errors: list[str]) -> Any:
-    origin = typing.get_origin(tp)
-    if is_dataclass(tp):
-        if not isinstance(value, dict):
-            errors.append(f'{key} must be a section (mapping), got {value!r}')
-            return None
-        return _build(tp, value, key, errors)
+    """Convert one YAML/ROS value to the declared type (ints for floats, lists for tuples)."""
     if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            errors.append(f'{key} must be a number, got {value!r}')
-            return None
-        return float(value)
+        return _number(value, key, errors)
     if tp is int:
         if isinstance(value, float) and value.is_integer():
             return int(value)
         if isinstance(value, bool) or not isinstance(value, int):
-            errors.append(f'{key} must be an integer, got {value!r}')
+            errors.append(f'{key} = {value!r}: must be a whole number')
             return None
         return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            errors.append(f'{key} must be true or false, got {value!r}')
+    if tp is bool or tp is str:
+        if not isinstance(value, tp):
+            errors.append(f'{key} = {value!r}: must be '
+                          f'{"true or false" if tp is bool else "a string"}')
             return None
         return value
-    if tp is str:
-        if not isinstance(value, str):
-            errors.append(f'{key} must be a string, got {value!r}')
+    if typing.get_origin(tp) is tuple:
+        if not isinstance(value, (list, tuple)):
+            errors.append(f'{key} = {value!r}: must be a list of numbers')
             return None
-        return value
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)) or any(
-                isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
-            errors.append(f'{key} must be a list of numbers, got {value!r}')
-            return None
-        return tuple(float(v) for v in value)
-    if tp is dict or origin is dict:
-        if not isinstance(value, dict):
-            errors.append(f'{key} must be a mapping, got {value!r}')
-            return None
-        return dict(value)
+        items = [_number(v, f'{key}[{i}]', errors) for i, v in enumerate(value)]
+        return None if None in items else tuple(items)
     return value
 
 
-def _build(cls, d: dict, prefix: str, errors: list[str]):
-    hints = _hints(cls)
-    names = [f.name for f in fields(cls)]
-    kwargs = {}
+def _build(base: Any, d: dict, prefix: str, errors: list[str]) -> Any:
+    """Return ``base`` (a section instance) with the values of ``d`` converted and applied."""
+    hints = typing.get_type_hints(type(base))
+    changes = {}
     for k, v in d.items():
         key = f'{prefix}.{k}' if prefix else str(k)
         if k not in hints:
             errors.append(f"unknown key '{key}' (known in {prefix or 'the top level'}: "
-                          f"{', '.join(names)})")
-            continue
-        conv = _convert(v, hints[k], key, errors)
-        if conv is not None:
-            kwargs[k] = conv
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as exc:  # a section's own constructor refused
-        errors.append(f'{prefix or "parameters"}: {exc}')
-        return None
+                          f"{', '.join(hints)})")
+        elif is_dataclass(hints[k]):
+            if isinstance(v, dict):
+                changes[k] = _build(getattr(base, k), v, key, errors)
+            else:
+                errors.append(f'{key} must be a section (mapping), got {v!r}')
+        else:
+            conv = _convert(v, hints[k], key, errors)
+            if conv is not None:
+                changes[k] = conv
+    return replace(base, **changes)
 
 
 def _nest_dotted(d: dict) -> dict:
@@ -299,7 +301,7 @@ def params_from_dict(d: dict | None, node_name: str | None = None,
         raise ParameterError([f'parameters must be a mapping, got {type(d).__name__}'])
     d = _nest_dotted(_unwrap_ros(d, node_name))
     errors: list[str] = []
-    p = _build(ControllerParams, d, '', errors)
+    p = _build(ControllerParams(), d, '', errors)
     if errors:
         raise ParameterError(errors)
     if validate_set:
@@ -328,6 +330,46 @@ def dump_params(p: ControllerParams, ros_node: str | None = DEFAULT_NODE_NAME) -
     return yaml.safe_dump(d, sort_keys=False, default_flow_style=False)
 
 
+PARAMETER_FILE_HEADER = """\
+# Parameters of the LADRC height-follow controller, ROS 2 parameter-file layout.
+# GENERATED from the parameter declarations (ladrc_follow/control): `ladrc params --yaml`.
+# Every key, its unit, range and meaning: docs/parameters.md (generated from the same place).
+# Load: ros2 run ladrc_follow follow_node --ros-args --params-file follow.yaml
+#       or ladrc_follow.control.params.load_params(path) (plain nested YAML works too).
+# `/**` applies to the follow node under any name or namespace.
+"""
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, tuple):
+        return '[' + ', '.join(_yaml_value(float(v)) for v in value) + ']'
+    if isinstance(value, str):
+        return value
+    text = repr(value)
+    if isinstance(value, float) and 'e' in text and '.' not in text:
+        text = text.replace('e', '.0e')  # YAML 1.1 (PyYAML) reads 1e-06 as a string
+    return text
+
+
+def parameter_file(p: ControllerParams | None = None) -> str:
+    """Return the commented ROS 2 parameter file of ``p`` (defaults), from the declarations."""
+    p = p if p is not None else ControllerParams()
+    lines = [PARAMETER_FILE_HEADER.rstrip('\n'), '/**:', '  ros__parameters:']
+    section = None
+    for e in entries(p):
+        *head, key = e.name.split('.')
+        if head and head[0] != section:
+            section = head[0]
+            lines.append(f'    {section}:')
+        indent = '      ' if head else '    '
+        unit = f'[{e.spec.unit}] ' if e.spec.unit else ''
+        rng = f'{e.spec.range_text()}: ' if e.spec.range_text() else ''
+        lines.append(f'{indent}{key}: {_yaml_value(e.value)}  # {unit}{rng}{e.spec.description}')
+    return '\n'.join(lines) + '\n'
+
+
 def load_params(path: str | Path, node_name: str | None = None) -> ControllerParams:
     """Load and validate a parameter file (plain or ROS 2 layout)."""
     path = Path(path)
@@ -345,12 +387,7 @@ def load_params(path: str | Path, node_name: str | None = None) -> ControllerPar
 # ---------------------------------------------------------------------------
 # validation
 
-def _td_problems(name: str, td: TDParams, h_s: float) -> list[str]:
-    # TDParams.problems(h_s) also checks the discrete (firmware-order) step's stability
-    return [f'{name}: {m}' for m in td.problems(h_s if h_s > 0.0 else None)]
-
-
-def _euler_bound(order: int, betas: tuple[float, ...], w0: float | None, h_s: float) -> str:
+def _euler_bound(order: int, h_s: float) -> str:
     """Largest stable ω0·h for bandwidth gains of this order (bisection on euler_is_stable)."""
     lo, hi = 0.0, 4.0
     for _ in range(50):
@@ -364,88 +401,38 @@ def _euler_bound(order: int, betas: tuple[float, ...], w0: float | None, h_s: fl
 
 def _eso_problems(p: ControllerParams) -> list[str]:
     e = p.eso
-    out = []
-    if e.order not in (1, 2):
-        out.append(f'eso.order must be 1 or 2 (plant model order), got {e.order!r}')
-    if e.discretization not in ('euler', 'zoh'):
-        out.append(f"eso.discretization must be 'euler' or 'zoh', got {e.discretization!r}")
-    if e.gains not in ('explicit', 'bandwidth'):
-        out.append(f"eso.gains must be 'explicit' or 'bandwidth', got {e.gains!r}")
-    if e.b0 == 0.0:
-        out.append('eso.b0 = 0: the control law divides by b0')
-    elif not e.b0 > 0.0:
-        out.append(f'eso.b0 = {e.b0}: must be > 0 (a positive command raises the nozzle '
-                   'and widens the gap)')
-    uses_w0 = e.gains == 'bandwidth' or e.discretization == 'zoh'
-    if uses_w0 and not e.w0_rad_s > 0.0:
-        out.append(f'eso.w0_rad_s must be > 0, got {e.w0_rad_s!r}')
     if e.discretization == 'zoh' and e.gains == 'explicit':
-        out.append("eso: the 'zoh' discretization derives its gains from w0_rad_s and h_s; "
-                   "set eso.gains: 'bandwidth'")
-    explicit = e.gains == 'explicit' and e.discretization == 'euler'
-    if explicit and e.order in (1, 2):
-        if len(e.betas) != e.order + 1:
-            out.append(f'eso.betas needs {e.order + 1} values for order {e.order}, '
-                       f'got {len(e.betas)}')
-        elif not all(b > 0.0 for b in e.betas):
-            out.append(f'eso.betas must all be > 0, got {list(e.betas)}')
-    for name in ('disturbance_limit', 'disturbance_rate_limit'):
-        v = getattr(e, name)
-        if not v >= 0.0:
-            out.append(f'eso.{name} must be >= 0 (0 = off), got {v!r}')
-    if out or not p.h_s > 0.0:
-        return out
-    if e.discretization == 'euler':
-        betas = eso_gains(p)
-        if not euler_is_stable(e.order, betas, p.h_s):
-            bound = _euler_bound(e.order, betas, None, p.h_s)
-            if e.gains == 'bandwidth':
-                out.append(f'eso: explicit-Euler observer with ω0·h = {e.w0_rad_s * p.h_s:.3g} '
-                           f'is unstable (bound {bound} for order {e.order})')
-            else:
-                out.append(f'eso: explicit-Euler observer with betas {list(betas)} at h = '
-                           f'{p.h_s} s is unstable (bandwidth gains are stable up to '
-                           f'ω0·h = {bound} for order {e.order})')
-    return out
+        return ["eso: the 'zoh' discretization derives its gains from w0_rad_s and h_s; "
+                "set eso.gains: 'bandwidth'"]
+    if e.gains == 'explicit' and len(e.betas) != e.order + 1:
+        return [f'eso.betas needs {e.order + 1} values for order {e.order}, got {len(e.betas)}']
+    if e.discretization == 'euler' and not euler_is_stable(e.order, eso_gains(p), p.h_s):
+        bound = _euler_bound(e.order, p.h_s)
+        if e.gains == 'bandwidth':
+            return [f'eso: explicit-Euler observer with ω0·h = {e.w0_rad_s * p.h_s:.3g} '
+                    f'is unstable (bound {bound} for order {e.order})']
+        return [f'eso: explicit-Euler observer with betas {list(e.betas)} at h = {p.h_s} s is '
+                f'unstable (bandwidth gains are stable up to ω0·h = {bound} for order '
+                f'{e.order})']
+    return []
 
 
 def _law_problems(p: ControllerParams) -> list[str]:
     law = p.law
     out = []
-    if law.form not in (1, 2, 3):
-        out.append(f'law.form must be 1, 2 or 3 (notes §3.1), got {law.form!r}')
-    if law.gains not in ('explicit', 'bandwidth'):
-        out.append(f"law.gains must be 'explicit' or 'bandwidth', got {law.gains!r}")
-        return out
-    if law.gains == 'bandwidth':
-        if not law.wc_rad_s > 0.0:
-            out.append(f'law.wc_rad_s must be > 0, got {law.wc_rad_s!r}')
-            return out
-    else:
-        if not law.kp > 0.0:
-            out.append(f'law.kp must be > 0, got {law.kp!r}')
-        if p.eso.order == 2 and not law.kd > 0.0:
-            out.append(f'law.kd must be > 0 for the order-2 law, got {law.kd!r}')
-        if out:
-            return out
-    if p.eso.order in (1, 2) and p.h_s > 0.0:
-        kp, kd = law_gains(p)
-        # nominal loop with a perfect ESO: order 1 e(k+1) = (1 − kp·h)e
-        if p.eso.order == 1 and not kp * p.h_s < 1.0:
-            out.append(f'law: kp·h = {kp * p.h_s:.3g} >= 1, the sampled loop would '
-                       'overshoot every tick; lower law.kp')
+    if law.gains == 'explicit' and p.eso.order == 2 and not law.kd > 0.0:
+        out.append(f'law.kd must be > 0 for the order-2 law, got {law.kd!r}')
+    kp, _ = law_gains(p)
+    # nominal loop with a perfect ESO: order 1 e(k+1) = (1 − kp·h)e
+    if p.eso.order == 1 and not kp * p.h_s < 1.0:
+        out.append(f'law: kp·h = {kp * p.h_s:.3g} >= 1, the sampled loop would overshoot '
+                   'every tick; lower law.kp')
     return out
 
 
 def _limit_problems(p: ControllerParams) -> list[str]:
     lim = p.limits
     out = []
-    if not lim.v_max_mm_s > 0.0:
-        out.append(f'limits.v_max_mm_s must be > 0, got {lim.v_max_mm_s!r}')
-    if not lim.a_max_mm_s2 > 0.0:
-        out.append(f'limits.a_max_mm_s2 must be > 0, got {lim.a_max_mm_s2!r}')
-    if out:
-        return out
     for sec, obj in (('pid', p.pid), ('interp', p.interp)):
         if obj.v_max_mm_s > lim.v_max_mm_s:
             out.append(f'limits.v_max_mm_s ({lim.v_max_mm_s:g}) below {sec}.v_max_mm_s '
@@ -458,30 +445,56 @@ def _limit_problems(p: ControllerParams) -> list[str]:
     return out
 
 
+def _follow_problems(p: ControllerParams) -> list[str]:
+    f = p.follow
+    out = []
+    if not f.min_target_gap_mm < f.max_target_gap_mm:
+        out.append(f'follow.min_target_gap_mm ({f.min_target_gap_mm:g}) must be below '
+                   f'max_target_gap_mm ({f.max_target_gap_mm:g})')
+    if not f.collision_gap_mm < f.min_target_gap_mm:
+        out.append(f'follow.collision_gap_mm ({f.collision_gap_mm:g}) must be below '
+                   f'min_target_gap_mm ({f.min_target_gap_mm:g}): following at the '
+                   'collision limit would fault at once')
+    if not f.followed_widen_s < f.followed_timeout_s:
+        out.append(f'follow.followed_widen_s ({f.followed_widen_s:g}) must be below '
+                   f'followed_timeout_s ({f.followed_timeout_s:g}): the tolerance widens '
+                   'before the alarm')
+    if f.followed_wide_tol_mm < p.pid.followed_tol_mm:
+        out.append(f'follow.followed_wide_tol_mm ({f.followed_wide_tol_mm:g}) below '
+                   f'pid.followed_tol_mm ({p.pid.followed_tol_mm:g}): widening would '
+                   'narrow the tolerance')
+    if f.stale_timeout_s < p.h_s:
+        out.append(f'follow.stale_timeout_s ({f.stale_timeout_s:g}) below one tick '
+                   f'({p.h_s:g} s): every input would be stale')
+    return out
+
+
+# The checks that relate several parameters, run once every value is in its declared range.
+CROSS_CHECKS: list[Callable[[ControllerParams], list[str]]] = [
+    lambda p: p.td_a.problems(p.h_s, 'td_a.'),
+    lambda p: p.td_b.problems(p.h_s, 'td_b.'),
+    _eso_problems, _law_problems, _limit_problems, _follow_problems,
+]
+
+
 def validate(p: ControllerParams) -> list[str]:
-    """Return every reason why ``p`` cannot run (empty list: valid)."""
-    out: list[str] = []
-    if not p.h_s > 0.0:
-        out.append(f'h_s must be > 0, got {p.h_s!r}')
-    elif p.h_s > 0.01:
-        out.append(f'h_s = {p.h_s} s: the controller is designed for a 2 kHz tick '
-                   '(0.0005 s); a period over 10 ms is certainly a unit mistake')
-    out += _td_problems('td_a', p.td_a, p.h_s)
-    out += _td_problems('td_b', p.td_b, p.h_s)
-    out += _eso_problems(p)
-    out += [f'kalman: {m}' for m in p.kalman.kalman_params().problems()]
-    out += _law_problems(p)
-    out += _limit_problems(p)
-    out += p.pid.problems()
-    out += p.interp.problems()
-    if isinstance(p.follow, FollowParams):
-        out += p.follow.problems()
-        if not p.follow.problems():
-            out += follow_problems(p)
-    else:
-        out.append(f'follow must be a FollowParams section, got {type(p.follow).__name__}')
-    for extra in EXTRA_VALIDATORS:
-        out += extra(p)
+    """Return every reason why ``p`` cannot run (empty list: valid).
+
+    First each value against its declaration (:mod:`.schema`), then, if all are in range,
+    the cross-parameter checks. A check that raises is itself a reason: validation never
+    lets an exception through.
+    """
+    try:
+        out = field_problems(p)
+    except Exception as exc:  # noqa: BLE001 - a malformed set is a reason, not a crash
+        return [f'parameters could not be checked: {type(exc).__name__}: {exc}']
+    if out:
+        return out
+    for cross in CROSS_CHECKS + EXTRA_VALIDATORS:
+        try:
+            out += cross(p)
+        except Exception as exc:  # noqa: BLE001
+            out.append(f'a parameter check failed on these values: {type(exc).__name__}: {exc}')
     return out
 
 

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 from .law import apply_limits
 from .ops import SCALAR
+from .schema import Section, param
 
 # Suppression level → (gain scale, deadband). Level 0 = no suppression. The
 # firmware's table is not in the notes; this mapping halves the loop gain at the
@@ -47,42 +48,37 @@ SUPPRESS_DEADBAND_MM = (0.0, 0.005, 0.01, 0.02, 0.03, 0.05)
 
 
 @dataclass(frozen=True)
-class PIDParams:
-    """Parameters of the PID baseline (units in the names)."""
+class PIDParams(Section):
+    """Parameters of the PID baseline (``ControllerParams.pid``)."""
 
-    kp_1_s: float = 20.0            # notes: "比例增益 2" (firmware scale unknown; see docs)
-    kd: float = 0.05                # mm/s per mm/s of gap rate (dimensionless)
-    d_filter_s: float = 0.002       # derivative low-pass time constant
-    ki_1_s2: float = 0.0            # integral gain; 0 = PD (the plant already integrates)
-    ff_ref_gain: float = 1.0        # reference-rate feed-forward
-    ff_surface_gain: float = 0.2    # notes: "前馈系数 20" read as 20 %
-    ff_filter_s: float = 0.005      # low-pass of the feed-forward rates
-    ff_delay_s: float = 0.1         # feed-forward enable delay after enable_feed_forward(True)
-    suppress_level: int = 3         # notes: 抑振等级 3 (5 on the unsupported thin sheet)
-    v_max_mm_s: float = 150.0       # output saturation (firmware pidParam.nVUnitV)
-    a_max_mm_s2: float = 4000.0     # acceleration limit (firmware pidParam.nAccUnitV)
-    followed_tol_mm: float = 0.05   # |gap − target| counted as "in position"
-    followed_hold_s: float = 0.05   # … continuously for this long → has_followed()
+    PREFIX = 'pid.'
 
-    def problems(self) -> list[str]:
-        """Return readable reasons why these values cannot work (empty if valid)."""
-        out = []
-        if not self.kp_1_s > 0.0:
-            out.append(f'pid.kp_1_s must be > 0, got {self.kp_1_s!r}')
-        for name in ('kd', 'ki_1_s2', 'ff_ref_gain', 'ff_surface_gain', 'd_filter_s',
-                     'ff_filter_s', 'ff_delay_s', 'followed_hold_s'):
-            value = getattr(self, name)
-            if not value >= 0.0:
-                out.append(f'pid.{name} must be >= 0, got {value!r}')
-        if not isinstance(self.suppress_level, int) or not 0 <= self.suppress_level <= 5:
-            out.append(f'pid.suppress_level must be an integer 0..5, got {self.suppress_level!r}')
-        if not self.v_max_mm_s > 0.0:
-            out.append(f'pid.v_max_mm_s must be > 0, got {self.v_max_mm_s!r}')
-        if not self.a_max_mm_s2 > 0.0:
-            out.append(f'pid.a_max_mm_s2 must be > 0, got {self.a_max_mm_s2!r}')
-        if not self.followed_tol_mm > 0.0:
-            out.append(f'pid.followed_tol_mm must be > 0, got {self.followed_tol_mm!r}')
-        return out
+    kp_1_s: float = param(20.0, '1/s', 'proportional gain (notes: "gain 2", firmware scale '
+                          'unknown; see docs/control-law.md)', gt=0.0, le=1000.0,
+                          seed='notes §5.3 item 5')
+    kd: float = param(0.05, '1', 'derivative gain on the measured gap rate',
+                      ge=0.0, le=10.0)
+    d_filter_s: float = param(0.002, 's', 'derivative low-pass time constant',
+                              ge=0.0, le=1.0)
+    ki_1_s2: float = param(0.0, '1/s²', 'integral gain; 0 = PD (the plant integrates)',
+                           ge=0.0, le=10000.0)
+    ff_ref_gain: float = param(1.0, '1', 'reference-rate feed-forward gain', ge=0.0, le=2.0)
+    ff_surface_gain: float = param(0.2, '1', 'sheet-surface-rate feed-forward gain '
+                                   '("feed-forward 20" read as 20 %)', ge=0.0, le=2.0,
+                                   seed='notes §5.3 item 5')
+    ff_filter_s: float = param(0.005, 's', 'low-pass time constant of the feed-forward rates',
+                               ge=0.0, le=1.0)
+    ff_delay_s: float = param(0.1, 's', 'feed-forward enable delay after it is switched on',
+                              ge=0.0, le=10.0, seed='notes §3.5 EnableFeedForward')
+    suppress_level: int = param(3, '1', 'vibration suppression level while machining '
+                                '(0 = off)', ge=0, le=5, seed='notes §5.3 item 5')
+    v_max_mm_s: float = param(150.0, 'mm/s', 'output saturation', gt=0.0, le=1000.0)
+    a_max_mm_s2: float = param(4000.0, 'mm/s²', 'acceleration limit of the output',
+                               gt=0.0, le=1e6)
+    followed_tol_mm: float = param(0.05, 'mm', '|gap − target| counted as in position',
+                                   gt=0.0, le=5.0, seed='notes §3.5 HasFollowed')
+    followed_hold_s: float = param(0.05, 's', 'in position this long → followed',
+                                   ge=0.0, le=10.0, seed='notes §3.5 HasFollowed')
 
 
 def _lowpass_coeff(tau_s: float, h_s: float) -> float:

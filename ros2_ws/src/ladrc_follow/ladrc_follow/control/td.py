@@ -32,23 +32,28 @@ import math
 import numpy as np
 
 from .ops import SCALAR
+from .schema import Section, field_problems, param
 
 SAMPLE_PERIOD_S = 1.0 / 2000.0
 """The firmware's ``SAMPLE_PERIOD 2000`` (ticks per second): h = 0.5 ms."""
 
 
 @dataclass(frozen=True)
-class TDParams:
+class TDParams(Section):
     """Parameters of one equivalent-linear TD (notes §2.1).
 
     ``k1`` and ``k2`` are dimensionless, ``r_per_s`` is the speed factor R in 1/s and
     ``alpha`` the feed-forward coefficient α in 1/s (α·Δv is added to x2 each step).
     """
 
-    k1: float
-    k2: float
-    r_per_s: float
-    alpha: float = 0.0
+    k1: float = param(unit='1', description='position stiffness k1 (firmware int / 10)',
+                      gt=0.0, le=1000.0, seed='notes §2.1')
+    k2: float = param(unit='1', description='damping coefficient k2 (firmware int / 10)',
+                      gt=0.0, le=1000.0, seed='notes §2.1')
+    r_per_s: float = param(unit='1/s', description='speed factor R; ωn = R·√k1',
+                           gt=0.0, le=2000.0, seed='notes §2.1')
+    alpha: float = param(0.0, '1/s', 'feed-forward coefficient α of the reference increment',
+                         ge=0.0, le=1000.0, seed='notes §2.1')
 
     @property
     def natural_frequency_rad_s(self) -> float:
@@ -60,35 +65,21 @@ class TDParams:
         """ξ = k2 / (2√k1) of x1/v (notes §2.1)."""
         return self.k2 / (2.0 * math.sqrt(self.k1))
 
-    def problems(self, h_s: float | None = None) -> list[str]:
+    def problems(self, h_s: float | None = None, prefix: str = 'td.') -> list[str]:
         """Readable reasons why these parameters cannot run; empty when valid.
 
         With ``h_s`` the discrete (firmware-order) step is also checked for stability.
         """
-        out = []
-        for name in ('k1', 'k2', 'r_per_s', 'alpha'):
-            val = getattr(self, name)
-            if not isinstance(val, (int, float)) or not math.isfinite(val):
-                out.append(f'td.{name} = {val!r}: must be a finite number')
-        if out:
-            return out
-        if self.k1 <= 0.0:
-            out.append(f'td.k1 = {self.k1}: must be > 0 (it is the position stiffness)')
-        if self.k2 <= 0.0:
-            out.append(f'td.k2 = {self.k2}: must be > 0, otherwise x1 oscillates without'
-                       ' damping')
-        if self.r_per_s <= 0.0:
-            out.append(f'td.r_per_s = {self.r_per_s}: the speed factor R must be > 0')
-        if self.alpha < 0.0:
-            out.append(f'td.alpha = {self.alpha}: the feed-forward coefficient must be >= 0')
+        out = field_problems(self, prefix)
         if not out and h_s is not None:
             if not (h_s > 0.0):
                 out.append(f'h_s = {h_s}: the sample period must be > 0')
             else:
                 rho = max(abs(np.linalg.eigvals(td_discrete_matrix(self, h_s))))
                 if rho >= 1.0:
-                    out.append(f'td: ωn = {self.natural_frequency_rad_s:.4g} rad/s is unstable'
-                               f' at h = {h_s} s (spectral radius {rho:.4f} >= 1); lower R')
+                    out.append(f'{prefix.rstrip(".")}: ωn = {self.natural_frequency_rad_s:.4g}'
+                               f' rad/s is unstable at h = {h_s} s (spectral radius '
+                               f'{rho:.4f} >= 1); lower R')
         return out
 
 

@@ -1,0 +1,596 @@
+"""The follow node: the 2 kHz loop around the pure :class:`FollowController`.
+
+Thin by design (DESIGN.md): sensor callbacks store the latest samples as plain values; each
+0.5 ms tick builds a :class:`TickInput`, steps the control core, and publishes one
+``VelocityCommand`` and one ``FollowStatus`` (with the exact inputs used, for replay). Nothing
+else happens on the tick path: no logging, no I/O, no allocation beyond the message fill.
+
+Loop: a deadline loop on an ``EventsExecutor`` (``loop: deadline``, default) or a ROS timer
+(``loop: timer``); ``bench/loop_timing.py`` measures both, docs/follow-node.md says why the
+default won. QoS: see :mod:`ladrc_follow.node.qos`.
+
+Safety: zero velocity with ``enable = false`` on stop, fault, shutdown, SIGINT and SIGTERM
+(the node installs its own signal handlers so it can still publish the zero command before the
+ROS context goes down).
+"""
+
+from __future__ import annotations
+
+from array import array
+from dataclasses import dataclass
+import gc
+import math
+import signal
+import sys
+import time
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_msgs.msg import (
+    AxisFeedback,
+    CapacitiveHeight,
+    FollowEvent,
+    FollowStatus,
+    VelocityCommand,
+)
+from ladrc_msgs.srv import (
+    GradientFollow,
+    HeightCompensation,
+    ResetFault,
+    SetMachining,
+    SetTarget,
+    StartFollow,
+    StopFollow,
+)
+import numpy as np
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+import yaml
+
+from ..control.follow import FollowController, TickInput
+from ..control.params import (
+    DEFAULT_NODE_NAME,
+    ControllerParams,
+    ParameterError,
+    dump_params,
+    params_from_dict,
+)
+from ..control.schema import Entry, entries, field_problems, param
+from . import qos
+from .cdr import CdrPacker
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    """Parameters of the node itself (not of the controller), fixed at start-up."""
+
+    loop: str = param('deadline', '', "tick source: 'deadline' (own deadline loop on an "
+                      "EventsExecutor) or 'timer' (a ROS steady-clock timer)",
+                      choices=('deadline', 'timer'), runtime=False)
+    stamp_tolerance_s: float = param(0.05, 's', 'a sample whose sender stamp lies further '
+                                     'than this in the future of its receive time, or 10x '
+                                     'this in the past, is invalid: the clocks of driver and '
+                                     'controller must agree to this (docs/follow-node.md)',
+                                     gt=0.0, le=10.0, runtime=False)
+    diagnostics_period_s: float = param(1.0, 's', 'period of /diagnostics', ge=0.05, le=60.0,
+                                        runtime=False)
+
+
+_ROS_TYPE = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+             float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+def descriptor(entry: Entry) -> ParameterDescriptor:
+    """Return the ROS descriptor of one declared parameter (type, range, unit, read-only)."""
+    s = entry.spec
+    unit = f' [{s.unit}]' if s.unit else ''
+    seed = f' ({s.seed})' if s.seed else ''
+    desc = ParameterDescriptor(name=entry.name, description=f'{s.description}{unit}{seed}',
+                               read_only=not s.runtime)
+    desc.type = _ROS_TYPE.get(entry.type, ParameterType.PARAMETER_DOUBLE_ARRAY)
+    if s.range_text():
+        desc.additional_constraints = ('one of ' if s.choices else 'range ') + s.range_text()
+    if s.choices or s.lower is None or s.le is None:
+        return desc
+    if entry.type is int:
+        desc.integer_range = [IntegerRange(from_value=int(s.lower), to_value=int(s.le), step=1)]
+    elif entry.type is float:
+        desc.floating_point_range = [FloatingPointRange(from_value=float(s.lower),
+                                                        to_value=float(s.le), step=0.0)]
+    return desc
+
+
+def ros_value(entry: Entry, value: Any) -> Any:
+    """Return a value as ROS wants it for this entry: floats for float fields, lists for arrays."""
+    if entry.type is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, (tuple, list, array)):
+        return [float(v) for v in value]
+    return value
+
+
+def _defaults(packer: CdrPacker) -> list[Any]:
+    """Zero values of a packer's leaf fields, of the right Python type each."""
+    zero = {'string': '', 'bool': False, 'float32': 0.0, 'float64': 0.0}
+    return [zero.get(kind, 0) for _, kind in packer.fields]
+
+
+class FollowNode(Node):
+    """ROS 2 wrapper of :class:`FollowController` (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__(DEFAULT_NODE_NAME)
+        self._declaring = True
+        self._entries = {e.name: e for e in entries(ControllerParams())}
+        node_entries = list(entries(NodeParams()))
+        try:
+            for e in node_entries + list(self._entries.values()):
+                self._declare(e)
+        except (ParameterException, ValueError, TypeError) as exc:
+            raise ParameterError([f'{type(exc).__name__}: {exc}']) from exc
+        self._declaring = False
+        self.node_params = NodeParams(**{e.name: self.get_parameter(e.name).value
+                                         for e in node_entries})
+        reasons = field_problems(self.node_params)
+        # The whole set, as loaded from the parameter file, must be valid to start.
+        try:
+            self.params = self._params_from_ros({})
+        except ParameterError as exc:
+            reasons += exc.reasons
+        if reasons:
+            raise ParameterError(reasons)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self.controller = FollowController(self.params)
+        self._pending_params: ControllerParams | None = None
+        self.h_s = self.params.h_s
+        self.period_ns = int(round(self.h_s * 1e9))
+        self.loop_mode = self.node_params.loop
+
+        # Latest samples (zero-order hold), as plain values.
+        # Freshness is judged from the controller's own receive time on the steady clock,
+        # never from the sender's stamp alone (safety issue); t_s counts from here.
+        self._t0_ns = time.monotonic_ns()
+        self._stamp_future_ns = int(self.node_params.stamp_tolerance_s * 1e9)
+        self._stamp_past_ns = 10 * self._stamp_future_ns
+        self.stamp_rejects = 0
+        self.tick_exceptions = 0
+        self.gap_seq = 0
+        self.gap_mm = math.nan
+        self.gap_valid = False
+        self.gap_status = CapacitiveHeight.STATUS_FAULT
+        self.gap_stamp_s = -math.inf
+        self.enc_seq = 0
+        self.enc_mm = math.nan
+        self.enc_stamp_s = -math.inf
+        self.drive_enabled = False
+        self.drive_fault = False
+        self._gap_last_seq = -1
+        self._enc_last_seq = -1
+        self.missed_gap_samples = 0
+        self.missed_feedback_samples = 0
+
+        self.sub_gap = self.create_subscription(
+            CapacitiveHeight, 'axis/capacitive_height', self._on_gap, qos.CONTROL_INPUT)
+        self.sub_fb = self.create_subscription(
+            AxisFeedback, 'axis/feedback', self._on_feedback, qos.CONTROL_INPUT)
+        self.pub_cmd = self.create_publisher(VelocityCommand, 'axis/velocity_command',
+                                             qos.HIGH_RATE)
+        self.pub_status = self.create_publisher(FollowStatus, 'follow/status', qos.HIGH_RATE)
+        self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS)
+        self.pub_run_params = self.create_publisher(String, 'run/parameters', qos.RUN_TEXT)
+
+        self.create_service(StartFollow, 'follow/start', self._srv_start)
+        self.create_service(StopFollow, 'follow/stop', self._srv_stop)
+        self.create_service(SetTarget, 'follow/set_target', self._srv_set_target)
+        self.create_service(SetMachining, 'follow/set_machining', self._srv_machining)
+        self.create_service(HeightCompensation, 'follow/height_compensation',
+                            self._srv_compensation)
+        self.create_service(GradientFollow, 'follow/gradient_follow', self._srv_gradient)
+        self.create_service(ResetFault, 'follow/reset_fault', self._srv_reset)
+
+        # The tick publishes pre-serialized CDR (ladrc_follow.node.cdr): filling rclpy messages
+        # field by field cost more than the whole control step. One value list per message,
+        # refilled in place each tick.
+        self._cmd_packer = CdrPacker('ladrc_msgs/msg/VelocityCommand')
+        self._cmd_vals = _defaults(self._cmd_packer)
+        self._st_packer = CdrPacker('ladrc_msgs/msg/FollowStatus')
+        self._st_vals = _defaults(self._st_packer)
+        ix = self._st_packer.index
+        self._ix = ix
+        self._ix_inputs = [ix[n] for n in (
+            't_s', 'gap_seq', 'gap_mm', 'gap_valid', 'gap_status', 'gap_stamp_s', 'encoder_seq',
+            'encoder_mm', 'encoder_stamp_s', 'drive_enabled', 'drive_fault', 'velocity_mm_s',
+            'period_us', 'compute_us', 'input_age_us', 'overrun')]
+        self.tick_index = 0
+        # Loop statistics (ring of periods for the 1 Hz percentiles).
+        self._ring = np.zeros(4096)
+        self._last_start_ns = 0
+        self.overruns = 0
+        self._age_max_us = 0.0
+        self._ticks_at_diag = 0
+        self._diag_t_ns = time.monotonic_ns()
+        self.create_timer(self.node_params.diagnostics_period_s,
+                          self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._publish_parameters()
+
+    def _publish_parameters(self) -> None:
+        text = dump_params(self.params)
+        self._publish_event(FollowEvent.PARAMETERS, text=text)
+        self.pub_run_params.publish(String(data=text))
+
+    # ---- parameters -------------------------------------------------------------------
+    def _declare(self, e: Entry) -> None:
+        """Declare one parameter; an integer given for a float parameter becomes a float."""
+        override = self._parameter_overrides.get(e.name)
+        if override is not None:
+            value = ros_value(e, override.value)
+            if value is not override.value:
+                self._parameter_overrides[e.name] = Parameter(e.name, value=value)
+        self.declare_parameter(e.name, ros_value(e, e.value), descriptor(e))
+
+    def _params_from_ros(self, changes: dict[str, Any]) -> ControllerParams:
+        values = {name: self.get_parameter(name).value for name in self._entries}
+        values.update(changes)
+        return params_from_dict({k: (tuple(v) if isinstance(v, (list, tuple, array)) else v)
+                                 for k, v in values.items()})
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        if self._declaring:
+            return SetParametersResult(successful=True)
+        changes = {}
+        for p in parameters:
+            if p.name not in self._entries:
+                return SetParametersResult(successful=False, reason=f'unknown parameter {p.name}')
+            changes[p.name] = p.value
+        try:
+            candidate = self._params_from_ros(changes)
+        except ParameterError as exc:
+            # Rejected: the running values stay.
+            return SetParametersResult(successful=False, reason=str(exc))
+        except Exception as exc:  # noqa: BLE001 - never let a parameter crash the node
+            return SetParametersResult(successful=False,
+                                       reason=f'rejected: {type(exc).__name__}: {exc}')
+        self._pending_params = candidate  # applied at the next tick boundary
+        return SetParametersResult(successful=True)
+
+    # ---- inputs -----------------------------------------------------------------------
+    def _receive(self, stamp) -> tuple[float, bool]:
+        """Return the receive time (s since start, steady clock) and the stamp's plausibility.
+
+        Plausible: the sender's stamp is not in the future, nor far in the past, of the wall
+        clock now.
+        """
+        skew_ns = stamp.sec * 1_000_000_000 + stamp.nanosec - time.time_ns()
+        ok = -self._stamp_past_ns <= skew_ns <= self._stamp_future_ns
+        if not ok:
+            self.stamp_rejects += 1
+        return (time.monotonic_ns() - self._t0_ns) * 1e-9, ok
+
+    def _on_gap(self, msg: CapacitiveHeight) -> None:
+        seq = msg.seq
+        if self._gap_last_seq >= 0 and seq > self._gap_last_seq + 1:
+            self.missed_gap_samples += seq - self._gap_last_seq - 1
+        self._gap_last_seq = seq
+        self.gap_seq = seq
+        self.gap_stamp_s, stamp_ok = self._receive(msg.header.stamp)
+        self.gap_mm = msg.gap_mm
+        self.gap_valid = msg.valid and stamp_ok
+        self.gap_status = msg.status if stamp_ok else CapacitiveHeight.STATUS_FAULT
+
+    def _on_feedback(self, msg: AxisFeedback) -> None:
+        seq = msg.seq
+        if self._enc_last_seq >= 0 and seq > self._enc_last_seq + 1:
+            self.missed_feedback_samples += seq - self._enc_last_seq - 1
+        self._enc_last_seq = seq
+        self.enc_seq = seq
+        self.enc_stamp_s, stamp_ok = self._receive(msg.header.stamp)
+        self.enc_mm = msg.position_mm if stamp_ok else math.nan  # not finite: a fault
+        self.drive_enabled = msg.drive_enabled
+        self.drive_fault = msg.drive_fault
+
+    # ---- the tick ---------------------------------------------------------------------
+    def tick(self) -> None:
+        """One controller tick: inputs -> core -> command and status out."""
+        start_mono = time.monotonic_ns()
+        now_ns = time.time_ns()
+        if self._pending_params is not None:
+            self.params, self._pending_params = self._pending_params, None
+            self.controller.set_params(self.params)
+            self._publish_parameters()
+        t_s = (start_mono - self._t0_ns) * 1e-9
+        gap_stamp_s, enc_stamp_s = self.gap_stamp_s, self.enc_stamp_s
+        tick = TickInput(t_s, self.gap_mm, self.gap_valid, gap_stamp_s, self.enc_mm,
+                         enc_stamp_s, self.drive_enabled, self.drive_fault, self.gap_status)
+        controller = self.controller
+        velocity = controller.step(tick)
+        enable = bool(controller.enable)
+        velocity = float(velocity) if enable else 0.0
+
+        sec, nsec = divmod(now_ns, 1_000_000_000)
+        cmd = self._cmd_vals  # header.stamp.sec, .nanosec, .frame_id, seq, velocity, enable
+        cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, velocity, enable
+        self.pub_cmd.publish(self._cmd_packer.pack(cmd))
+        compute_ns = time.monotonic_ns() - start_mono
+
+        period_ns = start_mono - self._last_start_ns if self._last_start_ns else self.period_ns
+        self._last_start_ns = start_mono
+        self._ring[self.tick_index & 4095] = period_ns * 1e-3
+        overrun = period_ns > 2 * self.period_ns
+        if overrun:
+            self.overruns += 1
+        age_us = (t_s - min(gap_stamp_s, enc_stamp_s)) * 1e6
+        if age_us > self._age_max_us:
+            self._age_max_us = age_us
+
+        st = self._st_vals
+        ix = self._ix
+        for name, value in controller.internals().items():
+            st[ix[name]] = value
+        st[0], st[1], st[3] = sec, nsec, self.tick_index
+        values = (t_s, self.gap_seq, self.gap_mm, self.gap_valid, self.gap_status, gap_stamp_s,
+                  self.enc_seq, self.enc_mm, enc_stamp_s, self.drive_enabled, self.drive_fault,
+                  velocity, period_ns * 1e-3, compute_ns * 1e-3,
+                  age_us if math.isfinite(age_us) else -1.0, overrun)
+        for i, value in zip(self._ix_inputs, values, strict=True):
+            st[i] = value
+        self.pub_status.publish(self._st_packer.pack(st))
+        self.tick_index += 1
+
+    def on_tick_exception(self, exc: BaseException) -> None:
+        """Any exception on the tick path: zero command first, then FAULT, then the log."""
+        reason = f'exception in the follow node tick: {type(exc).__name__}: {exc}'
+        self.tick_exceptions += 1
+        try:
+            self.publish_zero(reason, log=self.tick_exceptions == 1)
+        finally:
+            self.controller.fail(reason)
+
+    def publish_zero(self, reason: str, log: bool = True) -> None:
+        """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C)."""
+        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        cmd = self._cmd_vals
+        cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, 0.0, False
+        self.pub_cmd.publish(self._cmd_packer.pack(cmd))
+        self.tick_index += 1
+        if log:
+            self.get_logger().info(f'zero velocity commanded: {reason}')
+
+    # ---- follow commands (services) ---------------------------------------------------
+    def _publish_event(self, kind: int, value_mm: float = math.nan, delay_s: float = 0.0,
+                       flag: bool = False, text: str = '', velocity_mm_s: float = 0.0,
+                       accel_mm_s2: float = 0.0) -> None:
+        ev = FollowEvent()
+        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        ev.header.stamp.sec = sec
+        ev.header.stamp.nanosec = nsec
+        ev.tick = self.tick_index  # takes effect at the start of the next tick
+        ev.kind = kind
+        ev.value_mm = float(value_mm)
+        ev.delay_s = float(delay_s)
+        ev.velocity_mm_s = float(velocity_mm_s)
+        ev.accel_mm_s2 = float(accel_mm_s2)
+        ev.flag = bool(flag)
+        ev.text = text
+        self.pub_events.publish(ev)
+
+    def _command(self, response, kind: int, name: str, event: dict, **kwargs):
+        accepted, message = self.controller.command(name, **kwargs)
+        response.accepted = bool(accepted)
+        response.message = str(message)
+        if accepted:
+            self._publish_event(kind, **event)
+        else:
+            self.get_logger().warning(f'{name} rejected: {message}')
+        return response
+
+    def _srv_start(self, request, response):
+        return self._command(response, FollowEvent.START_FOLLOW, 'start_follow',
+                             {'value_mm': request.target_gap_mm},
+                             target_gap_mm=request.target_gap_mm)
+
+    def _srv_stop(self, request, response):
+        return self._command(response, FollowEvent.STOP_FOLLOW, 'stop_follow', {})
+
+    def _srv_set_target(self, request, response):
+        return self._command(response, FollowEvent.SET_TARGET, 'set_target',
+                             {'value_mm': request.target_gap_mm},
+                             target_gap_mm=request.target_gap_mm)
+
+    def _srv_machining(self, request, response):
+        return self._command(response, FollowEvent.MACHINING, 'machining',
+                             {'flag': request.machining}, on=bool(request.machining))
+
+    def _srv_compensation(self, request, response):
+        return self._command(response, FollowEvent.HEIGHT_COMPENSATION, 'height_compensation',
+                             {'value_mm': request.offset_mm, 'delay_s': request.delay_s},
+                             offset_mm=request.offset_mm, delay_s=request.delay_s)
+
+    def _srv_gradient(self, request, response):
+        return self._command(response, FollowEvent.GRADIENT_FOLLOW, 'gradient_follow',
+                             {'value_mm': request.target_gap_mm, 'delay_s': request.delay_s,
+                              'velocity_mm_s': request.velocity_mm_s,
+                              'accel_mm_s2': request.accel_mm_s2},
+                             target_gap_mm=request.target_gap_mm, delay_s=request.delay_s,
+                             velocity_mm_s=request.velocity_mm_s,
+                             accel_mm_s2=request.accel_mm_s2)
+
+    def _srv_reset(self, request, response):
+        return self._command(response, FollowEvent.RESET_FAULT, 'reset_fault', {})
+
+    # ---- diagnostics ------------------------------------------------------------------
+    def loop_statistics(self) -> dict[str, float]:
+        """Rate, period percentiles, overruns, input age since the last call."""
+        now = time.monotonic_ns()
+        elapsed = (now - self._diag_t_ns) * 1e-9
+        ticks = self.tick_index - self._ticks_at_diag
+        self._diag_t_ns, self._ticks_at_diag = now, self.tick_index
+        n = min(ticks, 4096, self.tick_index)
+        idx = (np.arange(self.tick_index - n, self.tick_index) & 4095) if n else []
+        periods = self._ring[idx] if n else np.zeros(1)
+        age, self._age_max_us = self._age_max_us, 0.0
+        return {
+            'rate_hz': ticks / elapsed if elapsed > 0 else 0.0,
+            'period_p50_us': float(np.percentile(periods, 50)),
+            'period_p99_us': float(np.percentile(periods, 99)),
+            'period_max_us': float(periods.max()),
+            'overruns': float(self.overruns),
+            'input_age_max_us': age,
+            'missed_gap_samples': float(self.missed_gap_samples),
+            'stamp_rejects': float(self.stamp_rejects),
+            'tick_exceptions': float(self.tick_exceptions),
+            **{f'samples_{k}': float(v) for k, v in self.controller.counts.items()},
+            'missed_feedback_samples': float(self.missed_feedback_samples),
+        }
+
+    def _publish_diagnostics(self) -> None:
+        stats = self.loop_statistics()
+        ctl = self.controller
+        status = DiagnosticStatus()
+        status.name = 'ladrc_follow: follow loop'
+        status.hardware_id = 'z_axis'
+        state = getattr(ctl.state, 'name', str(ctl.state))
+        if ctl.fault_reason:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'{state}: {ctl.fault_reason}'
+        elif stats['rate_hz'] < 0.99 / self.h_s:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'{state}: loop rate {stats["rate_hz"]:.0f} Hz below target'
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = state
+        values = {k: f'{v:.6g}' for k, v in stats.items()}
+        values.update({'state': state, 'fault_reason': ctl.fault_reason or '',
+                       'ticks': str(self.tick_index), 'loop': self.loop_mode})
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [status]
+        self.pub_diag.publish(arr)
+
+
+def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
+    """Drive the node's ticks until ``running[0]`` turns false."""
+    period = node.period_ns
+    def tick() -> None:
+        try:
+            node.tick()
+        except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
+            node.on_tick_exception(exc)
+
+    if node.loop_mode == 'timer':
+        node.create_timer(node.h_s, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        while running[0]:
+            executor.spin_once(timeout_sec=0.05)
+        return
+    # Deadline loop: serve callbacks until the next deadline, then tick. A tick later than
+    # one period behind its deadline skips ahead instead of bursting to catch up.
+    next_ns = time.monotonic_ns() + period
+    mono = time.monotonic_ns
+    while running[0]:
+        remaining = next_ns - mono()
+        if remaining > 0:
+            executor.spin_once(timeout_sec=remaining * 1e-9)
+            continue
+        if remaining < -period:
+            # late (descheduled): serve the samples that waited first, so a late controller
+            # does not blame the sensor for its own delay
+            executor.spin_once(timeout_sec=0.0)
+            executor.spin_once(timeout_sec=0.0)
+        tick()
+        next_ns += period
+        if mono() - next_ns > period:
+            next_ns = mono() + period
+
+
+def params_file_problem(args: list[str]) -> str:
+    """Return why a ``--params-file`` of the command line cannot be read ('' when all can).
+
+    rcl would refuse a malformed file with a log line of its own and an exception; reading the
+    files first gives the user one line that names the file.
+    """
+    for flag, path in zip(args, args[1:], strict=False):
+        if flag != '--params-file':
+            continue
+        try:
+            with open(path, encoding='utf-8') as f:
+                yaml.safe_load(f)
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            return f'parameter file {path}: ' + ' '.join(str(exc).split())
+    return ''
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_follow follow_node --ros-args --params-file FILE``.
+
+    A bad parameter file or value ends the start with one line on stderr and exit code 2.
+    """
+    problem = params_file_problem(sys.argv if argv is None else argv)
+    if problem:
+        print(f'follow_node: {problem}', file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # noqa: BLE001 - e.g. rcl cannot parse the parameter file
+        text = ' '.join(str(exc).split())
+        print(f'follow_node: cannot start: {type(exc).__name__}: {text}', file=sys.stderr)
+        return 2
+    running = [True]
+    stop_reason = ['shutdown']
+
+    def _stop(signum, _frame):
+        running[0] = False
+        stop_reason[0] = signal.Signals(signum).name
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    node = None
+    try:
+        try:
+            node = FollowNode()
+        except ParameterError as exc:
+            print(f'follow_node: invalid parameters: {" | ".join(exc.reasons)}',
+                  file=sys.stderr)
+            return 2
+        from rclpy.experimental import EventsExecutor
+
+        executor = EventsExecutor(context=node.context)
+        executor.add_node(node)
+        node.get_logger().info(f'following loop started ({node.loop_mode}, '
+                               f'{1.0 / node.h_s:.0f} Hz)')
+        # Everything alive now (node, controller, generated code) leaves the collector's
+        # reach: a full collection must not stall the 2 kHz loop.
+        gc.collect()
+        gc.freeze()
+        try:
+            run_loop(node, executor, running)
+        except ExternalShutdownException:
+            stop_reason[0] = 'external shutdown'
+        # Zero velocity before anything goes down.
+        for _ in range(3):
+            node.publish_zero(stop_reason[0])
+        executor.shutdown()
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

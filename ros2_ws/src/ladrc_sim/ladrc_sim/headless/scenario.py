@@ -1,0 +1,349 @@
+"""Scenario files: YAML -> :class:`Scenario` dataclasses, with one-line errors.
+
+A scenario is a run of the closed loop: the models' parameters, the sheet profiles, the
+initial state and a timeline of events (follow commands for the controller and events for
+the simulated world). The layout (every key but ``name`` and ``duration_s`` optional)::
+
+    name: sine_1hz
+    description: ...
+    duration_s: 6.0
+    seed: 1
+    initial_gap_mm: 10.0        # nozzle above the sheet at t = 0
+    initial_coverage: 1.0       # fraction of the nozzle over the sheet at t = 0
+    axis:    {model: first_order, t1_s: 0.008, v_max_mm_s: 200, ...}   # AxisParams
+    sensor:  {noise_std_mm: 0.005, ...}                                # SensorParams
+    encoder: {resolution_mm: 0.001}                                    # EncoderParams
+    sheet:
+      profiles:
+        - {kind: sine, amp_mm: 0.5, freq_hz: 1.0}
+    timeline:
+      - {t_s: 0.2, do: start_follow, target_gap_mm: 1.0}
+
+Any mistake raises :class:`ScenarioError` whose message is one line: the file, the dotted
+key (``sheet.profiles[1].freq_hz``) or the YAML line, and what is wrong.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+import importlib.resources
+import math
+from pathlib import Path
+import types
+import typing
+from typing import Any, Mapping
+
+import yaml
+
+from ..models.axis import AxisParams, ParamError
+from ..models.encoder import EncoderParams
+from ..models.sensor import SensorParams
+from ..models.sheet import PROFILE_KINDS, SheetParams
+
+REQUIRED = object()
+
+# Commands forwarded to the controller (``controller.command(name, **args)``), with their
+# arguments: name -> (type, default or REQUIRED, lower bound, upper bound).
+COMMANDS: dict[str, dict[str, tuple]] = {
+    'start_follow': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0)},
+    'set_target': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0)},
+    'stop_follow': {},
+    'machining': {'on': (bool, REQUIRED, None, None)},
+    'height_compensation': {'offset_mm': (float, REQUIRED, -10.0, 10.0)},
+    'gradient_follow': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0),
+                        'delay_s': (float, 0.0, 0.0, None)},
+}
+# Events acting on the simulated world (handled by the runner).
+SIM_EVENTS: dict[str, dict[str, tuple]] = {
+    'coverage': {'value': (float, REQUIRED, 0.0, 1.0), 'ramp_s': (float, 0.0, 0.0, None)},
+    'sensor_gain': {'value': (float, REQUIRED, 0.0, 10.0), 'ramp_s': (float, 0.0, 0.0, None)},
+    'drive': {'enabled': (bool, True, None, None), 'fault': (bool, False, None, None)},
+    'sensor_dropout': {'duration_s': (float, REQUIRED, 0.0, None)},
+    'sensor_freeze': {'duration_s': (float, REQUIRED, 0.0, None)},
+    'encoder_dropout': {'duration_s': (float, REQUIRED, 0.0, None)},
+    'encoder_jump': {'size_mm': (float, REQUIRED, None, None),
+                     'duration_s': (float, math.inf, 0.0, None)},
+    'encoder_stuck': {'duration_s': (float, REQUIRED, 0.0, None)},
+    'plate_kick': {'velocity_mm_s': (float, REQUIRED, None, None)},
+    'gas': {'on': (bool, REQUIRED, None, None)},
+}
+EVENTS = {**COMMANDS, **SIM_EVENTS}
+
+
+class ScenarioError(ValueError):
+    """A scenario file is malformed; the message is one line naming file and key."""
+
+
+@dataclass(frozen=True)
+class Event:
+    """One timeline entry: at ``t_s`` do ``name`` with ``args`` (defaults filled in)."""
+
+    t_s: float
+    name: str
+    args: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def is_command(self) -> bool:
+        """Whether the runner forwards this event to the controller."""
+        return self.name in COMMANDS
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A closed-loop run: models, sheet, initial state and the event timeline."""
+
+    name: str
+    duration_s: float
+    description: str = ''
+    seed: int = 0
+    initial_gap_mm: float = 10.0
+    initial_coverage: float = 1.0
+    axis: AxisParams = field(default_factory=AxisParams)
+    sensor: SensorParams = field(default_factory=SensorParams)
+    encoder: EncoderParams = field(default_factory=EncoderParams)
+    sheet: SheetParams = field(default_factory=SheetParams)
+    timeline: tuple[Event, ...] = ()
+    source: str = ''
+
+
+_TOP_KEYS = ('name', 'description', 'duration_s', 'seed', 'initial_gap_mm',
+             'initial_coverage', 'axis', 'sensor', 'encoder', 'sheet', 'timeline')
+
+
+class _Fail(Exception):
+    def __init__(self, key: str, message: str):
+        super().__init__(message)
+        self.key = key
+        self.message = message
+
+
+def _type_name(v: Any) -> str:
+    if v is None:
+        return 'null'
+    return {bool: 'a boolean', int: 'an integer', float: 'a number', str: 'a string',
+            list: 'a list', dict: 'a mapping'}.get(type(v), type(v).__name__)
+
+
+def _coerce(value: Any, typ: Any, key: str) -> Any:
+    """Check ``value`` against a simple annotation (float, int, bool, str, X | None)."""
+    args = typing.get_args(typ)
+    if typing.get_origin(typ) in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        typ = next(a for a in args if a is not type(None))
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise _Fail(key, f'expected a number, got {_type_name(value)} ({value!r})')
+        return float(value)
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _Fail(key, f'expected an integer, got {_type_name(value)} ({value!r})')
+        return value
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise _Fail(key, f'expected true or false, got {_type_name(value)} ({value!r})')
+        return value
+    if typ is str:
+        if not isinstance(value, str):
+            raise _Fail(key, f'expected a string, got {_type_name(value)} ({value!r})')
+        return value
+    raise TypeError(f'unsupported annotation {typ!r}')  # a bug in this module, not the file
+
+
+def _mapping(data: Any, key: str) -> dict:
+    if not isinstance(data, dict):
+        where = key or 'the file'
+        raise _Fail(key, f'{where} must be a mapping of keys, got {_type_name(data)}')
+    for k in data:
+        if isinstance(k, bool):
+            raise _Fail(key, f'key {k!r} is not a string (YAML reads a bare on/off/yes/no as '
+                             "a boolean: quote it, e.g. 'on': true)")
+        if not isinstance(k, str):
+            raise _Fail(key, f'key {k!r} is not a string')
+    return data
+
+
+def _join(prefix: str, key: str) -> str:
+    return f'{prefix}.{key}' if prefix else key
+
+
+def _build(cls: type, data: Any, prefix: str, skip: tuple[str, ...] = ()) -> Any:
+    """Build the dataclass ``cls`` from a mapping, checking keys, types and ranges."""
+    data = _mapping(data, prefix)
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in fields(cls) if f.name not in skip]
+    for k in data:
+        if k not in names:
+            raise _Fail(_join(prefix, k), f'unknown key (allowed: {", ".join(names)})')
+    kwargs = {k: _coerce(v, hints[k], _join(prefix, k)) for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except ParamError as e:
+        raise _Fail(_join(prefix, e.key), e.reason) from None
+
+
+def _profile(data: Any, key: str) -> Any:
+    data = _mapping(data, key)
+    if 'kind' not in data:
+        raise _Fail(_join(key, 'kind'),
+                    f'missing required key (one of: {", ".join(PROFILE_KINDS)})')
+    kind = data['kind']
+    if kind not in PROFILE_KINDS:
+        raise _Fail(_join(key, 'kind'),
+                    f'unknown profile kind {kind!r} (one of: {", ".join(PROFILE_KINDS)})')
+    rest = {k: v for k, v in data.items() if k != 'kind'}
+    return _build(PROFILE_KINDS[kind], rest, key)
+
+
+def _sheet(data: Any, key: str) -> SheetParams:
+    data = _mapping(data, key)
+    for k in data:
+        if k != 'profiles':
+            raise _Fail(_join(key, k), 'unknown key (allowed: profiles)')
+    profs = data.get('profiles', [])
+    if not isinstance(profs, list):
+        raise _Fail(_join(key, 'profiles'), f'expected a list, got {_type_name(profs)}')
+    built = tuple(_profile(p, f'{key}.profiles[{i}]') for i, p in enumerate(profs))
+    try:
+        return SheetParams(profiles=built)
+    except ParamError as e:
+        raise _Fail(_join(key, e.key), e.reason) from None
+
+
+def _event(data: Any, key: str, duration_s: float) -> Event:
+    data = _mapping(data, key)
+    for req in ('t_s', 'do'):
+        if req not in data:
+            raise _Fail(_join(key, req), 'missing required key')
+    t_s = _coerce(data['t_s'], float, _join(key, 't_s'))
+    if not 0.0 <= t_s <= duration_s:
+        raise _Fail(_join(key, 't_s'),
+                    f'{t_s} is outside the run (0 .. duration_s = {duration_s})')
+    name = data['do']
+    if name not in EVENTS:
+        raise _Fail(_join(key, 'do'), f'unknown event {name!r} (one of: {", ".join(EVENTS)})')
+    schema = EVENTS[name]
+    args = {}
+    for k in data:
+        if k in ('t_s', 'do'):
+            continue
+        if k not in schema:
+            allowed = ', '.join(schema) or 'none'
+            raise _Fail(_join(key, k), f'unknown argument of {name} (allowed: {allowed})')
+    for k, (typ, default, lo, hi) in schema.items():
+        sub = _join(key, k)
+        if k not in data:
+            if default is REQUIRED:
+                raise _Fail(sub, f'missing required argument of {name}')
+            args[k] = default
+            continue
+        v = _coerce(data[k], typ, sub)
+        if typ is float and (math.isnan(v) or (lo is not None and v < lo)
+                             or (hi is not None and v > hi)):
+            lo_s = '-inf' if lo is None else lo
+            hi_s = 'inf' if hi is None else hi
+            raise _Fail(sub, f'{v} out of range, must be within [{lo_s}, {hi_s}]')
+        args[k] = v
+    if name in ('start_follow', 'set_target', 'gradient_follow') and args['target_gap_mm'] <= 0:
+        raise _Fail(_join(key, 'target_gap_mm'), 'must be > 0 (a gap of 0 is contact)')
+    return Event(t_s=t_s, name=name, args=args)
+
+
+def scenario_from_dict(data: Any, source: str = '') -> Scenario:
+    """Build a :class:`Scenario` from parsed YAML; raise ScenarioError naming the key."""
+    label = source or '<dict>'
+    try:
+        return _scenario(data, source)
+    except _Fail as e:
+        msg = f'{label}: {e.key or "(top level)"}: {e.message}'
+        raise ScenarioError(' '.join(msg.split())) from None
+
+
+def _scenario(data: Any, source: str) -> Scenario:
+    data = _mapping(data, '')
+    for k in data:
+        if k not in _TOP_KEYS:
+            raise _Fail(k, f'unknown key (allowed: {", ".join(_TOP_KEYS)})')
+    for req in ('name', 'duration_s'):
+        if req not in data:
+            raise _Fail(req, 'missing required key')
+    name = _coerce(data['name'], str, 'name')
+    duration_s = _coerce(data['duration_s'], float, 'duration_s')
+    if not 0.0 < duration_s <= 3600.0:
+        raise _Fail('duration_s', f'{duration_s} out of range, must be in (0, 3600] s')
+    seed = _coerce(data.get('seed', 0), int, 'seed')
+    if seed < 0:
+        raise _Fail('seed', f'{seed} must be >= 0 (numpy seeds are non-negative)')
+    gap0 = _coerce(data.get('initial_gap_mm', 10.0), float, 'initial_gap_mm')
+    if not 0.0 < gap0 <= 100.0:
+        raise _Fail('initial_gap_mm', f'{gap0} out of range, must be in (0, 100] mm')
+    cov0 = _coerce(data.get('initial_coverage', 1.0), float, 'initial_coverage')
+    if not 0.0 <= cov0 <= 1.0:
+        raise _Fail('initial_coverage', f'{cov0} out of range, must be in [0, 1]')
+    tl = data.get('timeline', [])
+    if not isinstance(tl, list):
+        raise _Fail('timeline', f'expected a list of events, got {_type_name(tl)}')
+    events = [_event(ev, f'timeline[{i}]', duration_s) for i, ev in enumerate(tl)]
+    events.sort(key=lambda ev: ev.t_s)  # stable: same-time events keep file order
+    return Scenario(
+        name=name, duration_s=duration_s,
+        description=_coerce(data.get('description', ''), str, 'description'),
+        seed=seed, initial_gap_mm=gap0, initial_coverage=cov0,
+        axis=_build(AxisParams, data.get('axis', {}), 'axis'),
+        sensor=_build(SensorParams, data.get('sensor', {}), 'sensor'),
+        encoder=_build(EncoderParams, data.get('encoder', {}), 'encoder'),
+        sheet=_sheet(data.get('sheet', {}), 'sheet'),
+        timeline=tuple(events), source=source)
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that rejects duplicate keys (PyYAML silently keeps the last one)."""
+
+
+def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f'duplicate key {key!r}', key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+                                 _construct_mapping)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load a scenario file, or a shipped scenario by name (``'showcase'``)."""
+    p = Path(path)
+    if not p.exists() and p.suffix == '' and p.name == str(path):
+        shipped = {q.stem: q for q in list_scenarios()}
+        if p.name in shipped:
+            p = shipped[p.name]
+    label = str(path)
+    try:
+        text = p.read_text(encoding='utf-8')
+    except OSError as e:
+        raise ScenarioError(f'{label}: cannot read the file: {e.strerror or e}') from None
+    try:
+        data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as e:
+        mark = getattr(e, 'problem_mark', None)
+        line = f'line {mark.line + 1}' if mark is not None else 'line ?'
+        problem = getattr(e, 'problem', None) or str(e)
+        ctx, ctx_mark = getattr(e, 'context', None), getattr(e, 'context_mark', None)
+        if ctx and ctx_mark is not None:
+            problem += f' ({ctx} at line {ctx_mark.line + 1})'
+        raise ScenarioError(' '.join(f'{label}: {line}: bad YAML: {problem}'.split())) from None
+    if data is None:
+        raise ScenarioError(f'{label}: (top level): the file is empty')
+    return scenario_from_dict(data, label)
+
+
+def list_scenarios() -> list[Path]:
+    """Paths of the shipped scenario files (package data of ``ladrc_sim.headless.scenarios``)."""
+    root = importlib.resources.files('ladrc_sim.headless.scenarios')
+    return sorted((Path(str(e)) for e in root.iterdir() if e.name.endswith('.yaml')),
+                  key=lambda q: q.name)

@@ -1,0 +1,382 @@
+"""The sim node: the simulated Z axis as a drive on the ROS graph, in real time at 2 kHz.
+
+It runs a scenario with the *same* headless runner (:func:`ladrc_sim.headless.runner.run`) and
+the same models: the "controller" the runner steps is a :class:`DriveBridge` that, at each 0.5 ms
+deadline, publishes the tick's capacitive height, axis feedback and truth, and returns the
+latest velocity command received over DDS (one tick of transport delay, as on a fieldbus).
+The scenario's follow commands go to the controller's services, as a CNC would send them.
+
+Like a drive, it stops the axis when commands stop: no command for longer than
+``watchdog_timeout_s`` (default 5 ms, counted in the drive's own cycles) → quick stop (the axis
+brakes at its maximum deceleration, not through its velocity lag) and a drive fault with a
+readable reason, until commands are back for ``watchdog_recover_s``.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+from pathlib import Path
+import signal
+import sys
+import time
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, SimTruth, VelocityCommand
+from ladrc_msgs.srv import (
+    GradientFollow,
+    HeightCompensation,
+    SetMachining,
+    SetTarget,
+    StartFollow,
+    StopFollow,
+)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+
+from ..headless.runner import run
+from ..headless.scenario import ScenarioError, list_scenarios, load_scenario
+
+# The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
+# has a seq counter, so loss is measured); a keep-last-1 best-effort command input so the drive
+# always acts on the freshest command.
+HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                       reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
+RUN_TEXT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                           reliability=ReliabilityPolicy.BEST_EFFORT,
+                           durability=DurabilityPolicy.VOLATILE)
+
+SERVICES = {
+    'start_follow': (StartFollow, 'follow/start'),
+    'stop_follow': (StopFollow, 'follow/stop'),
+    'set_target': (SetTarget, 'follow/set_target'),
+    'machining': (SetMachining, 'follow/set_machining'),
+    'height_compensation': (HeightCompensation, 'follow/height_compensation'),
+    'gradient_follow': (GradientFollow, 'follow/gradient_follow'),
+}
+# scenario argument name -> service request field
+REQUEST_FIELDS = {'on': 'machining'}
+
+
+class StopSimulation(Exception):
+    """Raised inside the runner's loop to end the run early (Ctrl-C)."""
+
+
+class DriveBridge:
+    """The runner's controller: publishes samples, returns received commands, paces real time."""
+
+    def __init__(self, node: 'SimNode', executor, realtime: bool = True) -> None:
+        self.node = node
+        self.executor = executor
+        self.realtime = realtime
+        self.running = True
+        h = node.h_s
+        self.period_ns = int(round(h * 1e9))
+        self.t_start_ns = 0
+        self.cmd_velocity = 0.0
+        self.cmd_enable = False
+        self.cmd_seq = -1
+        self.cmd_count = 0
+        self.last_cmd_ns = 0
+        self.watchdog_ticks = max(1, int(round(node.watchdog_timeout_s / h)))
+        self.ticks_since_cmd = 0
+        self.recover_ns = int(node.watchdog_recover_s * 1e9)
+        self.fault_reason = ''
+        self.watchdog_trips = 0
+        self._resumed_ns = 0
+        self.seq = 0
+        self.truth_values = (math.nan,) * 6
+        self.late_ticks = 0
+        self._prev_enc = math.nan
+        self._prev_t = math.nan
+        self.periods_us: list[float] = []
+        self._last_tick_ns = 0
+
+    # ---- the runner's hooks -------------------------------------------------------------
+    def truth(self, t_s: float, true_gap_mm: float, sheet_mm: float, nozzle_mm: float,
+              coverage: float, plate_velocity_mm_s: float) -> None:
+        """Truth of the coming tick (called by the runner before ``step``)."""
+        self.truth_values = (true_gap_mm, sheet_mm, nozzle_mm, coverage, plate_velocity_mm_s,
+                             t_s)
+
+    def command(self, name: str, **kwargs: Any) -> None:
+        """Send a scenario follow command to the controller's service (asynchronously)."""
+        self.node.send_follow_command(name, kwargs)
+
+    def step(self, tick) -> float:
+        """Wait for this tick's deadline, publish its samples, return the latest command."""
+        node = self.node
+        now = time.monotonic_ns()
+        if self.t_start_ns == 0:
+            # The runner has allocated its per-run series: move everything alive now out of
+            # the collector's reach, so a full collection cannot stall the 2 kHz loop.
+            gc.collect()
+            gc.freeze()
+            now = time.monotonic_ns()
+            self.t_start_ns = now
+        deadline = self.t_start_ns + self.seq * self.period_ns
+        if self.realtime and now < deadline:
+            while now < deadline:
+                self.executor.spin_once(timeout_sec=(deadline - now) * 1e-9)
+                now = time.monotonic_ns()
+        else:
+            # Late (or not real time): still take the command that has arrived meanwhile.
+            self.executor.spin_once(timeout_sec=0.0)
+            if self.realtime and now - deadline > self.period_ns:
+                self.late_ticks += 1
+        if not self.running:
+            raise StopSimulation()
+        if self._last_tick_ns:
+            self.periods_us.append((now - self._last_tick_ns) * 1e-3)
+        self._last_tick_ns = now
+
+        # Drive watchdog, armed by the first command. It counts the drive's own cycles without
+        # a new command (as a fieldbus drive does), so a stall of this process is not taken
+        # for a silent controller.
+        fault = bool(tick.drive_fault)
+        reason = 'drive fault (scenario event)' if fault else ''
+        if self.last_cmd_ns:
+            self.ticks_since_cmd += 1
+            if self.ticks_since_cmd > self.watchdog_ticks:
+                if not self.fault_reason:
+                    self.watchdog_trips += 1
+                self.fault_reason = (f'no velocity command for {self.ticks_since_cmd} cycles '
+                                     f'(watchdog {self.watchdog_ticks} cycles = '
+                                     f'{self.watchdog_ticks * self.period_ns * 1e-6:g} ms): '
+                                     'axis stopped')
+                self._resumed_ns = 0
+            elif self.fault_reason:
+                if not self._resumed_ns:
+                    self._resumed_ns = now
+                elif now - self._resumed_ns > self.recover_ns:
+                    self.fault_reason = ''
+        if self.fault_reason:
+            fault, reason = True, self.fault_reason
+        node.publish_samples(self.seq, tick, fault, reason, self.truth_values)
+        self.seq += 1
+        if fault or not tick.drive_enabled or not self.cmd_enable:
+            return 0.0
+        return self.cmd_velocity
+
+    def quick_stop(self) -> bool:
+        """Return True while the watchdog holds the drive faulted: the axis brakes at a_max."""
+        return bool(self.fault_reason)
+
+    def on_command(self, msg: VelocityCommand) -> None:
+        """Velocity command callback: keep the latest (zero-order hold)."""
+        self.cmd_velocity = msg.velocity_mm_s
+        self.cmd_enable = msg.enable
+        self.cmd_seq = msg.seq
+        self.cmd_count += 1
+        self.last_cmd_ns = time.monotonic_ns()
+        self.ticks_since_cmd = 0
+
+
+class SimNode(Node):
+    """Publishes the simulated axis; subscribes to velocity commands; plays a scenario."""
+
+    def __init__(self) -> None:
+        super().__init__('ladrc_sim')
+        self.declare_parameter('scenario', 'showcase')
+        self.declare_parameter('exit_at_end', True)
+        self.declare_parameter('realtime', True)
+        self.declare_parameter('watchdog_timeout_s', 0.005)
+        self.declare_parameter('watchdog_recover_s', 0.1)
+        self.declare_parameter('wait_for_controller_s', 10.0)
+        # With a recorder: wait until it subscribes to sim/truth, then let discovery settle
+        # (start_delay_s), so the bag holds the scenario from its first tick.
+        self.declare_parameter('wait_for_recorder_s', 0.0)
+        self.declare_parameter('start_delay_s', 0.0)
+        self.declare_parameter('frame_id', 'z_axis')
+        self.scenario = load_scenario(self.get_parameter('scenario').value)
+        self.h_s = 0.0005
+        self.watchdog_timeout_s = float(self.get_parameter('watchdog_timeout_s').value)
+        self.watchdog_recover_s = float(self.get_parameter('watchdog_recover_s').value)
+        if not self.watchdog_timeout_s > 0:
+            raise ValueError('watchdog_timeout_s must be > 0')
+        self.frame_id = self.get_parameter('frame_id').value
+        self.pub_gap = self.create_publisher(CapacitiveHeight, 'axis/capacitive_height',
+                                             HIGH_RATE)
+        self.pub_fb = self.create_publisher(AxisFeedback, 'axis/feedback', HIGH_RATE)
+        self.pub_truth = self.create_publisher(SimTruth, 'sim/truth', HIGH_RATE)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        # The scenario text, latched: a recorder puts it into the bag (self-describing runs).
+        self.pub_scenario = self.create_publisher(String, 'run/scenario', RUN_TEXT)
+        self.pub_scenario.publish(String(data=self.scenario_text()))
+        self.follow_clients = {name: self.create_client(srv, topic)
+                        for name, (srv, topic) in SERVICES.items()}
+        self.bridge: DriveBridge | None = None
+        self._gap = CapacitiveHeight()
+        self._gap.header.frame_id = self.frame_id
+        self._fb = AxisFeedback()
+        self._fb.header.frame_id = self.frame_id
+        self._truth = SimTruth()
+        self._truth.header.frame_id = self.frame_id
+        self._pending: list = []
+        self.create_timer(1.0, self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def scenario_text(self) -> str:
+        """YAML text of the scenario being played (its file as written)."""
+        source = getattr(self.scenario, 'source', '') or ''
+        shipped = {q.stem: q for q in list_scenarios()}
+        for path in (Path(source), shipped.get(source)):
+            if path is not None and path.is_file():
+                return path.read_text(encoding='utf-8')
+        return f'name: {self.scenario.name}\n'
+
+    def attach(self, bridge: DriveBridge) -> None:
+        """Wire the bridge's command callback."""
+        self.bridge = bridge
+        self.create_subscription(VelocityCommand, 'axis/velocity_command', bridge.on_command,
+                                 CONTROL_INPUT)
+
+    def send_follow_command(self, name: str, args: dict[str, Any]) -> None:
+        """Call the controller's service for a scenario follow command."""
+        srv, topic = SERVICES[name]
+        request = srv.Request()
+        for key, value in args.items():
+            setattr(request, REQUEST_FIELDS.get(key, key), type(getattr(request, REQUEST_FIELDS
+                                                                        .get(key, key)))(value))
+        future = self.follow_clients[name].call_async(request)
+        future.add_done_callback(lambda f, n=name: self._command_done(n, f))
+
+    def _command_done(self, name: str, future) -> None:
+        result = future.result()
+        if result is not None and not result.accepted:
+            self.get_logger().warning(f'{name} rejected by the controller: {result.message}')
+
+    def publish_samples(self, seq: int, tick, fault: bool, reason: str, truth: tuple) -> None:
+        """Publish one tick's capacitive height, axis feedback and truth."""
+        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        gap = self._gap
+        gap.header.stamp.sec = sec
+        gap.header.stamp.nanosec = nsec
+        gap.seq = seq
+        reading = float(tick.gap_mm)
+        gap.gap_mm = reading
+        gap.valid = bool(tick.gap_valid)
+        gap.status = int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1))
+        # Oscillator model of docs/simulator.md: f = f0 / sqrt(1 + c/gap) (falls as C rises).
+        gap.raw_hz = (2.0e6 / math.sqrt(1.0 + 2.0 / max(reading, 0.01))
+                      if math.isfinite(reading) else 0.0)
+        self.pub_gap.publish(gap)
+        fb = self._fb
+        fb.header.stamp.sec = sec
+        fb.header.stamp.nanosec = nsec
+        fb.seq = seq
+        fb.position_mm = float(tick.encoder_mm)
+        bridge = self.bridge
+        dt = tick.t_s - bridge._prev_t
+        fb.velocity_mm_s = ((tick.encoder_mm - bridge._prev_enc) / dt
+                            if dt > 0 and math.isfinite(bridge._prev_enc) else 0.0)
+        bridge._prev_enc, bridge._prev_t = tick.encoder_mm, tick.t_s
+        fb.drive_enabled = bool(tick.drive_enabled)
+        fb.drive_fault = fault
+        fb.fault_reason = reason
+        self.pub_fb.publish(fb)
+        tr = self._truth
+        tr.header.stamp.sec = sec
+        tr.header.stamp.nanosec = nsec
+        tr.seq = seq
+        (tr.true_gap_mm, tr.sheet_mm, tr.nozzle_mm, tr.edge_coverage,
+         tr.plate_velocity_mm_s) = (float(v) for v in truth[:5])
+        tr.collision = bool(truth[0] <= 0.0)
+        self.pub_truth.publish(tr)
+
+    def wait_for_controller(self, executor, timeout_s: float) -> bool:
+        """Wait until the controller's follow services are up (so no command is lost)."""
+        needed = {e.name for e in self.scenario.timeline if e.name in SERVICES}
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if all(self.follow_clients[n].service_is_ready() for n in needed):
+                return True
+            executor.spin_once(timeout_sec=0.05)
+        return not needed
+
+    def wait_for_recorder(self, executor, timeout_s: float) -> bool:
+        """Wait until something (the recorder) subscribes to sim/truth."""
+        deadline = time.monotonic() + timeout_s
+        while self.pub_truth.get_subscription_count() == 0 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        return self.pub_truth.get_subscription_count() > 0
+
+    def _publish_diagnostics(self) -> None:
+        b = self.bridge
+        if b is None:
+            return
+        periods = sorted(b.periods_us[-2000:]) or [0.0]
+        b.periods_us = b.periods_us[-2000:]
+        p99 = periods[min(len(periods) - 1, int(0.99 * len(periods)))]
+        st = DiagnosticStatus(name='ladrc_sim: drive', hardware_id='z_axis_sim')
+        st.level = DiagnosticStatus.ERROR if b.fault_reason else DiagnosticStatus.OK
+        st.message = b.fault_reason or 'running'
+        values = {'seq': b.seq, 'period_p99_us': round(p99, 1), 'late_ticks': b.late_ticks,
+                  'commands_received': b.cmd_count, 'watchdog_trips': b.watchdog_trips,
+                  'scenario': self.scenario.name}
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        arr = DiagnosticArray(status=[st])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(arr)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_sim sim_node --ros-args -p scenario:=showcase``."""
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        try:
+            node = SimNode()
+        except (ScenarioError, ValueError) as exc:
+            print(f'sim_node: {exc}', file=sys.stderr)
+            return 2
+        from rclpy.experimental import EventsExecutor
+
+        executor = EventsExecutor(context=node.context)
+        executor.add_node(node)
+        bridge = DriveBridge(node, executor, bool(node.get_parameter('realtime').value))
+        node.attach(bridge)
+
+        def _stop(_signum, _frame):
+            bridge.running = False
+
+        signal.signal(signal.SIGINT, _stop)
+        signal.signal(signal.SIGTERM, _stop)
+        if not node.wait_for_controller(executor,
+                                        float(node.get_parameter('wait_for_controller_s').value)):
+            node.get_logger().warning('controller services not found: playing the scenario '
+                                      'anyway (its follow commands may be lost)')
+        wait_rec = float(node.get_parameter('wait_for_recorder_s').value)
+        if wait_rec > 0 and not node.wait_for_recorder(executor, wait_rec):
+            node.get_logger().warning('no recorder subscribed to sim/truth: playing anyway')
+        settle = time.monotonic() + float(node.get_parameter('start_delay_s').value)
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.05)
+        node.get_logger().info(f'scenario {node.scenario.name}: {node.scenario.duration_s} s')
+        try:
+            result = run(node.scenario, bridge)
+            node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
+        except StopSimulation:
+            pass
+        if bridge.running and not node.get_parameter('exit_at_end').value:
+            while bridge.running:
+                executor.spin_once(timeout_sec=0.1)
+        executor.shutdown()
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

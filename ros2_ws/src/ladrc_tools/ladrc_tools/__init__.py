@@ -1,0 +1,5 @@
+"""Tools around the controller and the simulator: bags, offline analysis, recorder, bring-up.
+
+``bags/`` and ``offline/`` never import rclpy; ``node/`` (the recorder) and ``bringup/`` (node
+processes) are the ROS side. ``cli.py`` is the ``ladrc`` command.
+"""

@@ -1,0 +1,1 @@
+"""rosbag2 bags with the pure-Python ``rosbags`` library: layout, writer, reader, typestore."""

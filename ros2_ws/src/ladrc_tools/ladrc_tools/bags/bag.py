@@ -1,0 +1,843 @@
+"""rosbag2 bags of a run: a crash-safe split writer and a reader into numpy columns (no rclpy).
+
+Writing (:class:`BagWriter`). ``rosbags`` writes ``metadata.yaml`` only on ``close()``, sqlite3
+commits only on close and mcap keeps its summary (and up to 1 MiB of messages) in memory until
+close, so a SIGKILLed writer would leave nothing readable. The writer therefore splits the bag
+into short *complete* storage files, as ``ros2 bag record --max-bag-duration`` does: each segment
+is written by its own ``rosbags`` ``Writer`` into a hidden work folder (``.segment-N/``), closed
+after ``split_s`` seconds, moved next to ``metadata.yaml`` as ``<bag>_<N>.mcap`` (or ``.db3``),
+and ``metadata.yaml`` is then rewritten atomically (temp file + ``os.replace``) to list every
+complete file. A kill loses the open segment only (at most ``split_s`` plus the writer's queue);
+``ros2 bag info``, ``AnyReader`` and these tools read the rest. No fsync: the threat is a killed
+process, not a lost page cache.
+
+Every storage file carries every connection with its ``offered_qos_profiles``, so ``ros2 bag
+play`` re-offers the recorded QoS. Messages come as raw CDR bytes (the recorder writes what
+rclpy received, byte-identical to ``serialize_cdr``) or as rosbags messages.
+
+Reading (:func:`open_bag` -> :class:`Bag`): one-line :class:`BagError` for a missing path, a
+folder that is not a bag, a truncated or foreign file and a missing topic; topics into numpy
+columns (``field.sub`` -> array); sequence-counter loss per topic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, is_dataclass
+import os
+from pathlib import Path
+import shutil
+import struct
+import time
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.metadata import dump_qos_v9
+import yaml
+
+from .typestore import ladrc_typestore
+
+BAG_VERSION = 9  # rosbag2 metadata version written by Jazzy
+STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+SUFFIX = {'mcap': '.mcap', 'sqlite3': '.db3'}
+
+# Contract topics (docs/interfaces.md) and their types.
+TOPIC_TYPES: dict[str, str] = {
+    'axis/capacitive_height': 'ladrc_msgs/msg/CapacitiveHeight',
+    'axis/feedback': 'ladrc_msgs/msg/AxisFeedback',
+    'axis/velocity_command': 'ladrc_msgs/msg/VelocityCommand',
+    'follow/status': 'ladrc_msgs/msg/FollowStatus',
+    'follow/events': 'ladrc_msgs/msg/FollowEvent',
+    'sim/truth': 'ladrc_msgs/msg/SimTruth',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    'run/parameters': 'std_msgs/msg/String',
+    'run/scenario': 'std_msgs/msg/String',
+}
+# 2 kHz topics whose first field after the header is a +1-per-message counter.
+SEQ_FIELD: dict[str, str] = {
+    'axis/capacitive_height': 'seq',
+    'axis/feedback': 'seq',
+    'axis/velocity_command': 'seq',
+    'follow/status': 'tick',
+    'sim/truth': 'seq',
+}
+
+_ZERO = QosTime(0, 0)
+# rmw's "infinite" duration as rosbag2 stores it (deadline / lifespan / lease unset).
+_INF = QosTime(2147483647, 4294967295)
+
+
+def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 10) -> Qos:
+    """Return a rosbags QoS profile (keep-last ``depth``) for ``offered_qos_profiles``."""
+    return Qos(QosHistory.KEEP_LAST, depth,
+               QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
+               QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
+               _INF, _INF, QosLiveliness.AUTOMATIC, _INF, False)
+
+
+# The publishers' QoS of the contract (ladrc_follow.node.qos): RELIABLE keep-last 100 on the
+# 2 kHz topics; RELIABLE + TRANSIENT_LOCAL (latched) on events (depth 100) and run/* texts
+# (depth 1).
+QOS_2KHZ = make_qos(False, False, 100)
+QOS_EVENTS = make_qos(True, True, 100)
+QOS_LATCHED = make_qos(True, True, 1)
+QOS_DEFAULT = make_qos(True, False, 10)
+TOPIC_QOS: dict[str, Qos] = {
+    **{t: QOS_2KHZ for t in SEQ_FIELD},
+    'follow/events': QOS_EVENTS,
+    '/diagnostics': QOS_DEFAULT,
+    'run/parameters': QOS_LATCHED,
+    'run/scenario': QOS_LATCHED,
+}
+
+
+class BagError(Exception):
+    """A bag cannot be written or read; the message is one line saying what and why."""
+
+
+@dataclass
+class _Topic:
+    name: str
+    msgtype: str
+    msgdef: str
+    rihs01: str
+    qos: tuple[Qos, ...]
+    count: int = 0
+
+
+@dataclass
+class _Segment:
+    path: str           # file name relative to the bag folder
+    start_ns: int
+    end_ns: int
+    count: int
+
+
+class BagWriter:
+    """Write a rosbag2 bag (mcap or sqlite3) in complete, crash-safe segments.
+
+    ``split_s`` closes a segment after that many seconds (wall clock, checked on every write
+    and on :meth:`poll`); ``None`` writes one file closed by :meth:`close` (headless runs).
+    ``name`` names the storage files (default: the folder's name).
+    """
+
+    def __init__(self, path: str | Path, *, storage: str = 'mcap', split_s: float | None = 1.0,
+                 custom_data: Mapping[str, str] | None = None, typestore: Any = None,
+                 name: str | None = None) -> None:
+        if storage not in STORAGES:
+            raise BagError(f'unknown storage {storage!r}: use one of {", ".join(STORAGES)}')
+        if split_s is not None and not split_s > 0:
+            raise BagError(f'split_s must be > 0 s or None (one file), got {split_s!r}')
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f'{self.path} exists already: a bag is never overwritten')
+        self.storage = storage
+        self.split_s = split_s
+        self.name = name or self.path.name  # storage files are <name>_<index>.<suffix>
+        self.custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
+        self.typestore = typestore or ladrc_typestore()
+        self._topics: dict[str, _Topic] = {}
+        self._segments: list[_Segment] = []
+        self._writer: Writer | None = None
+        self._conns: dict[str, Any] = {}
+        self._seg_dir: Path | None = None
+        self._seg_opened = 0.0
+        self._seg_count = 0
+        self._seg_start = 2**63 - 1
+        self._seg_end = 0
+        self._closed = False
+        self.path.mkdir(parents=True)
+        self._write_metadata()  # an empty but valid bag from the first moment
+
+    # -- topics and messages --------------------------------------------------------------
+    def add_topic(self, topic: str, msgtype: str | None = None,
+                  qos: Qos | Sequence[Qos] | None = None) -> None:
+        """Register ``topic`` (type and QoS default to the contract's); idempotent."""
+        if topic in self._topics:
+            return
+        msgtype = msgtype or TOPIC_TYPES.get(topic)
+        if msgtype is None:
+            raise BagError(f'topic {topic!r} is not in the contract: give its message type')
+        if msgtype not in self.typestore.types:
+            raise BagError(f'message type {msgtype!r} of {topic!r} is unknown to the typestore')
+        qos = TOPIC_QOS.get(topic, QOS_DEFAULT) if qos is None else qos
+        qos_t = (qos,) if isinstance(qos, Qos) else tuple(qos)
+        msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
+        self._topics[topic] = _Topic(topic, msgtype, msgdef,
+                                     self.typestore.hash_rihs01(msgtype), qos_t)
+        if self._writer is not None:
+            self._add_connection(self._topics[topic])
+
+    def write_raw(self, topic: str, timestamp_ns: int, data: bytes | memoryview) -> None:
+        """Write one CDR-serialized message received at ``timestamp_ns`` (bag time)."""
+        if self._closed:
+            raise BagError(f'bag {self.path} is closed')
+        if topic not in self._topics:
+            self.add_topic(topic)
+        if self._writer is None:
+            self._open_segment()
+        self._writer.write(self._conns[topic], timestamp_ns, data)
+        self._topics[topic].count += 1
+        self._seg_count += 1
+        if timestamp_ns < self._seg_start:
+            self._seg_start = timestamp_ns
+        if timestamp_ns > self._seg_end:
+            self._seg_end = timestamp_ns
+        if self.split_s is not None and time.monotonic() - self._seg_opened >= self.split_s:
+            self._close_segment()
+
+    def write(self, topic: str, timestamp_ns: int, msg: Any) -> None:
+        """Serialize a rosbags message of the topic's type and write it."""
+        if topic not in self._topics:
+            self.add_topic(topic)
+        self.write_raw(topic, timestamp_ns,
+                       self.typestore.serialize_cdr(msg, self._topics[topic].msgtype))
+
+    def poll(self) -> None:
+        """Close the open segment if it is older than ``split_s`` (call while idle)."""
+        if (self._writer is not None and self.split_s is not None and self._seg_count
+                and time.monotonic() - self._seg_opened >= self.split_s):
+            self._close_segment()
+
+    def counts(self) -> dict[str, int]:
+        """Messages written per topic so far."""
+        return {t.name: t.count for t in self._topics.values()}
+
+    def close(self) -> None:
+        """Close the open segment and write the final ``metadata.yaml``."""
+        if self._closed:
+            return
+        if self._writer is None and not self._segments:
+            self._open_segment()  # a bag with topics and no messages still has a storage file
+        if self._writer is not None:
+            self._close_segment()
+        self._closed = True
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- segments -------------------------------------------------------------------------
+    def _add_connection(self, t: _Topic) -> None:
+        self._conns[t.name] = self._writer.add_connection(
+            t.name, t.msgtype, msgdef=t.msgdef, rihs01=t.rihs01,
+            offered_qos_profiles=list(t.qos))
+
+    def _open_segment(self) -> None:
+        index = len(self._segments)
+        self._seg_dir = self.path / f'.segment-{index}'
+        if self._seg_dir.exists():  # left by an earlier attempt
+            shutil.rmtree(self._seg_dir)
+        self._writer = Writer(self._seg_dir, version=BAG_VERSION,
+                              storage_plugin=STORAGES[self.storage])
+        for key, value in self.custom_data.items():
+            self._writer.set_custom_data(key, value)
+        self._writer.open()
+        for t in self._topics.values():
+            self._add_connection(t)
+        self._seg_opened = time.monotonic()
+        self._seg_count = 0
+        self._seg_start = 2**63 - 1
+        self._seg_end = 0
+
+    def _close_segment(self) -> None:
+        writer = self._writer
+        src = writer.storage.path
+        writer.close()
+        self._writer = None
+        index = len(self._segments)
+        name = f'{self.name}_{index}{SUFFIX[self.storage]}'
+        # the storage file only becomes part of the bag once it is complete
+        os.replace(src, self.path / name)
+        start = self._seg_start if self._seg_count else 0
+        self._segments.append(_Segment(name, start, self._seg_end if self._seg_count else 0,
+                                       self._seg_count))
+        self._write_metadata()
+        shutil.rmtree(self._seg_dir, ignore_errors=True)
+        self._seg_dir = None
+
+    def _write_metadata(self) -> None:
+        segs = list(self._segments)
+        with_msgs = [s for s in segs if s.count]
+        start = min((s.start_ns for s in with_msgs), default=0)
+        end = max((s.end_ns for s in with_msgs), default=0)
+        qos_dump = {t.name: dump_qos_v9(list(t.qos)) for t in self._topics.values()}
+        # counts of complete files only (the open segment is not in the bag yet)
+        done = {t.name: t.count for t in self._topics.values()}
+        if self._writer is not None:
+            for name, conn in self._conns.items():
+                done[name] -= self._writer.counts[conn.id]
+        info = {
+            'version': BAG_VERSION,
+            'storage_identifier': self.storage,
+            'relative_file_paths': [s.path for s in segs],
+            'duration': {'nanoseconds': max(0, end - start)},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': sum(s.count for s in segs),
+            'topics_with_message_count': [
+                {'topic_metadata': {'name': t.name, 'type': t.msgtype,
+                                    'serialization_format': 'cdr',
+                                    'offered_qos_profiles': qos_dump[t.name],
+                                    'type_description_hash': t.rihs01},
+                 'message_count': done[t.name]}
+                for t in self._topics.values()],
+            'compression_format': '',
+            'compression_mode': '',
+            'files': [{'path': s.path,
+                       'starting_time': {'nanoseconds_since_epoch': s.start_ns},
+                       'duration': {'nanoseconds': max(0, s.end_ns - s.start_ns)},
+                       'message_count': s.count} for s in segs],
+            'custom_data': dict(self.custom_data) or None,
+            'ros_distro': 'jazzy',
+        }
+        tmp = self.path / 'metadata.yaml.tmp'
+        tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
+                                      sort_keys=False), encoding='utf-8')
+        os.replace(tmp, self.path / 'metadata.yaml')
+
+
+# ---- fast serialization of fixed-layout rows ------------------------------------------------
+_BASE = {'bool': '?', 'uint8': 'u1', 'int8': 'i1', 'byte': 'u1', 'char': 'u1', 'octet': 'u1',
+         'uint16': '<u2', 'int16': '<i2', 'uint32': '<u4', 'int32': '<i4', 'uint64': '<u8',
+         'int64': '<i8', 'float32': '<f4', 'float64': '<f8'}
+_ENCAP = 4  # CDR encapsulation header (little endian, 0x0001); alignment counts from its end
+
+
+class RowPacker:
+    """Serialize many messages of one type at once with numpy (all strings empty).
+
+    The CDR layout of a message whose strings are all empty is fixed, so a structured numpy
+    array with the CDR offsets *is* the serialized messages. Built from the typestore's field
+    definitions and checked once against ``serialize_cdr`` (raises if rosbags disagrees).
+    """
+
+    def __init__(self, msgtype: str, typestore: Any = None) -> None:
+        self.store = typestore or ladrc_typestore()
+        self.msgtype = msgtype
+        names: list[str] = []
+        formats: list[str] = []
+        offsets: list[int] = []
+        self.strings: list[str] = []
+        end = self._layout(msgtype, '', 0, names, formats, offsets)
+        self.fields = [n for n in names if not n.startswith('~')]
+        self._order = [n[5:] if n.startswith('~len.') else n for n in names]
+        self.dtype = np.dtype({'names': ['~encap'] + names, 'formats': ['<u4'] + formats,
+                               'offsets': [0] + [o + _ENCAP for o in offsets],
+                               'itemsize': end + _ENCAP})
+        probe = self.pack(1, {})
+        ref = bytes(self.store.serialize_cdr(self._default(msgtype), msgtype))
+        if probe[0] != ref:
+            raise BagError(f'fixed CDR layout of {msgtype} disagrees with rosbags')
+
+    def _layout(self, msgtype: str, prefix: str, off: int, names: list, formats: list,
+                offsets: list) -> int:
+        for fname, (kind, arg) in self.store.fielddefs[msgtype][1]:
+            key = f'{prefix}{fname}'
+            if kind.name == 'NAME':
+                off = self._layout(arg, f'{key}.', off, names, formats, offsets)
+            elif kind.name == 'BASE' and arg[0] == 'string':
+                off += -off % 4
+                names.append(f'~len.{key}')
+                formats.append('<u4')
+                offsets.append(off)
+                self.strings.append(key)
+                off += 5  # uint32 length 1, then the terminating NUL
+            elif kind.name == 'BASE' and arg[0] in _BASE:
+                fmt = _BASE[arg[0]]
+                size = np.dtype(fmt).itemsize
+                off += -off % size
+                names.append(key)
+                formats.append(fmt)
+                offsets.append(off)
+                off += size
+            else:
+                raise BagError(f'{msgtype}.{fname}: arrays have no fixed layout')
+        return off
+
+    def _default(self, msgtype: str) -> Any:
+        kwargs = {}
+        for fname, (kind, arg) in self.store.fielddefs[msgtype][1]:
+            if kind.name == 'NAME':
+                kwargs[fname] = self._default(arg)
+            elif arg[0] == 'string':
+                kwargs[fname] = ''
+            elif arg[0] == 'bool':
+                kwargs[fname] = False
+            elif arg[0].startswith('float'):
+                kwargs[fname] = 0.0
+            else:
+                kwargs[fname] = 0
+        return self.store.types[msgtype](**kwargs)
+
+    def pack(self, n: int, columns: Mapping[str, Any]) -> list[bytes]:
+        """Return ``n`` serialized messages; ``columns`` maps flattened field -> value/array.
+
+        Fields not given are zero; ``header.stamp`` may be given as ``stamp_s`` (float s).
+        """
+        arr = np.zeros(n, dtype=self.dtype)
+        arr['~encap'] = 0x00000100  # bytes 00 01 00 00: CDR little endian
+        for key in self.strings:
+            arr[f'~len.{key}'] = 1
+        cols = dict(columns)
+        if 'stamp_s' in cols:
+            sec, nsec = stamp_parts(np.asarray(cols.pop('stamp_s'), dtype=float))
+            cols.setdefault('header.stamp.sec', sec)
+            cols.setdefault('header.stamp.nanosec', nsec)
+        for key, value in cols.items():
+            if key not in self.dtype.names:
+                raise BagError(f'{self.msgtype} has no field {key!r}')
+            arr[key] = value
+        buf = arr.tobytes()
+        size = self.dtype.itemsize
+        return [buf[i:i + size] for i in range(0, n * size, size)]
+
+    def unpack(self, datas: Sequence[bytes],
+               names: Iterable[str] | None = None) -> dict[str, Any]:
+        """Columns of serialized messages; ``{}`` unless every one has all strings empty."""
+        size = self.dtype.itemsize
+        if any(len(d) != size for d in datas):
+            return {}
+        arr = np.frombuffer(b''.join(datas), dtype=self.dtype)
+        # same length is not enough: a short string can hide in alignment padding
+        if any(np.any(arr[f'~len.{k}'] != 1) for k in self.strings):
+            return {}
+        wanted = self.fields if names is None else [f for f in self.fields if f in set(names)]
+        out: dict[str, Any] = {f: arr[f].copy() for f in wanted}
+        for k in self.strings:
+            if names is None or k in set(names):
+                out[k] = np.full(arr.size, '', dtype=object)
+        # keep the message's field order
+        order = [k for k in self._order if k in out]
+        return {k: out[k] for k in order}
+
+
+def _packer(msgtype: str, typestore: Any) -> RowPacker:
+    key = (msgtype, id(typestore))
+    if key not in _PACKERS:
+        _PACKERS[key] = RowPacker(msgtype, typestore)
+    return _PACKERS[key]
+
+
+_PACKERS: dict[tuple[str, int], RowPacker] = {}
+
+
+def stamp_parts(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split seconds into ``builtin_interfaces/Time`` (sec, nanosec) arrays."""
+    ns = np.round(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+# ---- headless runs ----------------------------------------------------------------------
+EVENT_KIND = {'start_follow': 1, 'stop_follow': 2, 'set_target': 3, 'machining': 4,
+              'height_compensation': 5, 'gradient_follow': 6, 'reset_fault': 7}
+_EVENT_VALUE = {'start_follow': 'target_gap_mm', 'set_target': 'target_gap_mm',
+                'height_compensation': 'offset_mm', 'gradient_follow': 'target_gap_mm'}
+STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION = 0, 1, 2
+STATE_IDLE, STATE_FAULT = 0, 5
+
+
+def _fresh(n: int, h_s: float, spans: list[tuple[float, float]]) -> np.ndarray:
+    """Return True on ticks with a new sample (the runner holds samples in dropouts)."""
+    fresh = np.ones(n, dtype=bool)
+    for t_s, dur in spans:
+        i0 = int(round(t_s / h_s))
+        fresh[i0:i0 + max(1, int(round(dur / h_s)))] = False
+    return fresh
+
+
+def _drive_schedule(n: int, h_s: float, timeline: Sequence[Any]) -> tuple[np.ndarray, ...]:
+    enabled = np.ones(n, dtype=bool)
+    fault = np.zeros(n, dtype=bool)
+    for e in sorted((e for e in timeline if e.name == 'drive'), key=lambda e: e.t_s):
+        i = min(n - 1, int(round(e.t_s / h_s)))
+        enabled[i:] = bool(e.args.get('enabled', True))
+        fault[i:] = bool(e.args.get('fault', False))
+    return enabled, fault
+
+
+def _last_seq(fresh: np.ndarray) -> np.ndarray:
+    """Seq (0-based count of fresh samples) of the sample held at each tick."""
+    return np.maximum(np.cumsum(fresh) - 1, 0).astype(np.uint64)
+
+
+def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
+                  scenario_yaml: str = '', *, storage: str = 'mcap',
+                  controller: str = '') -> Path:
+    """Write a headless ``ladrc_sim.headless.runner.RunResult`` as a bag with a live run's layout.
+
+    One message per tick on the 2 kHz topics (capacitive height and feedback only on ticks
+    with a fresh sample, as a driver publishes nothing during a dropout), ``follow/events``
+    from the scenario's commands at the runner's ticks (plus a PARAMETERS event at tick 0),
+    ``run/parameters`` and ``run/scenario`` texts. Stamps and bag times are sim time. Status
+    fields come from ``result.internals`` when the controller reports them under FollowStatus
+    names, else from the run's series (floats the run does not know are NaN). Written into a
+    temporary folder and renamed, so ``path`` appears only complete.
+    """
+    path = Path(path)
+    if path.exists():
+        raise BagError(f'{path} exists already: a bag is never overwritten')
+    store = ladrc_typestore()
+    sc = result.scenario
+    h_s = float(result.h_s)
+    t = np.asarray(result.t_s, dtype=float)
+    n = t.size
+    internals = {k: np.asarray(v) for k, v in (result.internals or {}).items()}
+    timeline = list(getattr(sc, 'timeline', ()))
+    gap_fresh = _fresh(n, h_s, [(e.t_s, e.args['duration_s']) for e in timeline
+                                if e.name == 'sensor_dropout'])
+    enc_fresh = _fresh(n, h_s, [(e.t_s, e.args['duration_s']) for e in timeline
+                                if e.name == 'encoder_dropout'])
+    gap_seq, enc_seq = _last_seq(gap_fresh), _last_seq(enc_fresh)
+    # sample time of the held sample: the time of the last fresh tick
+    gap_stamp = t[np.maximum.accumulate(np.where(gap_fresh, np.arange(n), 0))]
+    enc_stamp = t[np.maximum.accumulate(np.where(enc_fresh, np.arange(n), 0))]
+    enabled, fault = _drive_schedule(n, h_s, timeline)
+    reading = np.asarray(result.reading_mm, dtype=float)
+    valid = np.asarray(result.reading_valid, dtype=bool)
+    collision = np.asarray(result.collision, dtype=bool)
+    encoder = np.asarray(result.encoder_mm, dtype=float)
+    command = np.asarray(result.command_mm_s, dtype=float)
+    target = np.asarray(result.target_gap_mm, dtype=float)
+    status_code = np.where(valid, STATUS_OK,
+                           np.where(collision, STATUS_COLLISION, STATUS_OUT_OF_RANGE))
+    enc_vel = np.diff(encoder, prepend=encoder[:1]) / h_s  # what a driver differentiates
+
+    cap_rows = RowPacker('ladrc_msgs/msg/CapacitiveHeight', store).pack(n, {
+        'stamp_s': t, 'seq': gap_seq, 'gap_mm': reading, 'raw_hz': np.nan, 'valid': valid,
+        'status': status_code})
+    fb_rows = RowPacker('ladrc_msgs/msg/AxisFeedback', store).pack(n, {
+        'stamp_s': t, 'seq': enc_seq, 'position_mm': encoder,
+        'velocity_mm_s': np.nan_to_num(enc_vel), 'drive_enabled': enabled,
+        'drive_fault': fault})
+    state = internals.get('state')
+    if state is not None:
+        state = np.nan_to_num(state).astype(np.uint8)
+        enable = (state != STATE_IDLE) & (state != STATE_FAULT)
+    else:
+        enable = np.isfinite(target)
+    cmd_rows = RowPacker('ladrc_msgs/msg/VelocityCommand', store).pack(n, {
+        'stamp_s': t, 'seq': np.arange(n, dtype=np.uint64), 'velocity_mm_s': command,
+        'enable': enable})
+    status_packer = RowPacker('ladrc_msgs/msg/FollowStatus', store)
+    status_cols: dict[str, Any] = {
+        'stamp_s': t, 'tick': np.arange(n, dtype=np.uint64), 't_s': t,
+        'target_gap_mm': target, 'gap_seq': gap_seq, 'gap_mm': reading, 'gap_valid': valid,
+        'gap_status': status_code,
+        'gap_stamp_s': gap_stamp, 'encoder_seq': enc_seq, 'encoder_mm': encoder,
+        'encoder_stamp_s': enc_stamp, 'drive_enabled': enabled, 'drive_fault': fault,
+        'velocity_mm_s': command, 'u_unlimited_mm_s': command, 'period_us': h_s * 1e6,
+        'compute_us': np.nan,
+        'input_age_us': (t - np.minimum(gap_stamp, enc_stamp)) * 1e6,
+    }
+    for f in status_packer.fields:
+        if f.startswith('header.') or f in status_cols:
+            continue
+        if status_packer.dtype[f].kind == 'f':
+            status_cols[f] = np.nan
+    for key, values in internals.items():
+        if key in status_packer.fields and not key.startswith('header.'):
+            kind = status_packer.dtype[key].kind
+            status_cols[key] = (values if kind == 'f'
+                                else np.nan_to_num(values).astype(status_packer.dtype[key]))
+    status_rows = status_packer.pack(n, status_cols)
+    truth_rows = RowPacker('ladrc_msgs/msg/SimTruth', store).pack(n, {
+        'stamp_s': t, 'seq': gap_seq, 'true_gap_mm': result.true_gap_mm,
+        'sheet_mm': result.sheet_mm, 'nozzle_mm': result.nozzle_mm,
+        'edge_coverage': result.coverage, 'plate_velocity_mm_s': np.nan,
+        'collision': collision})
+
+    # events: PARAMETERS at tick 0, then the scenario's commands at the runner's ticks
+    Event = store.types['ladrc_msgs/msg/FollowEvent']
+    Header = store.types['std_msgs/msg/Header']
+    Time = store.types['builtin_interfaces/msg/Time']
+
+    def event(tick: int, kind: int, value: float = float('nan'), delay: float = 0.0,
+              flag: bool = False, text: str = '') -> tuple[int, bytes]:
+        sec, nsec = divmod(int(round(t[tick] * 1e9)), 1_000_000_000)
+        msg = Event(header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=''),
+                    tick=tick, kind=kind, value_mm=value, delay_s=delay, velocity_mm_s=0.0,
+                    accel_mm_s2=0.0, flag=flag, text=text)
+        return tick, bytes(store.serialize_cdr(msg, 'ladrc_msgs/msg/FollowEvent'))
+
+    events = [event(0, 8, text=params_yaml)] if params_yaml else []
+    for e in timeline:
+        if not getattr(e, 'is_command', False) or e.name not in EVENT_KIND:
+            continue
+        tick = min(n - 1, int(round(e.t_s / h_s)))
+        a = e.args
+        value = float(a[_EVENT_VALUE[e.name]]) if e.name in _EVENT_VALUE else float('nan')
+        events.append(event(tick, EVENT_KIND[e.name], value, float(a.get('delay_s', 0.0)),
+                            bool(a.get('on', False))))
+    events.sort(key=lambda x: x[0])
+
+    tmp = path.with_name(f'.{path.name}.partial')
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    custom = {'ladrc.source': 'headless', 'ladrc.scenario': str(getattr(sc, 'name', ''))}
+    if controller:
+        custom['ladrc.controller'] = controller
+    writer = BagWriter(tmp, storage=storage, split_s=None, custom_data=custom, typestore=store,
+                       name=path.name)
+    try:
+        for topic in ('axis/capacitive_height', 'axis/feedback', 'axis/velocity_command',
+                      'follow/status', 'follow/events', 'sim/truth', 'run/parameters',
+                      'run/scenario'):
+            writer.add_topic(topic)
+        for topic, text in (('run/parameters', params_yaml), ('run/scenario', scenario_yaml)):
+            writer.write(topic, 0, string_msg(text, store))
+        ns = np.round(t * 1e9).astype(np.int64).tolist()
+        w = writer.write_raw
+        k = 0
+        gap_fresh_l, enc_fresh_l = gap_fresh.tolist(), enc_fresh.tolist()
+        for i in range(n):
+            ts = ns[i]
+            while k < len(events) and events[k][0] == i:
+                w('follow/events', ts, events[k][1])
+                k += 1
+            if gap_fresh_l[i]:
+                w('axis/capacitive_height', ts, cap_rows[i])
+            w('sim/truth', ts, truth_rows[i])
+            if enc_fresh_l[i]:
+                w('axis/feedback', ts, fb_rows[i])
+            w('follow/status', ts, status_rows[i])
+            w('axis/velocity_command', ts, cmd_rows[i])
+        writer.close()
+        os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+# ---- reading --------------------------------------------------------------------------------
+def _flatten(msg: Any, prefix: str = '') -> Iterator[tuple[str, Any]]:
+    for f in fields(msg):
+        if f.name == '__msgtype__':
+            continue
+        value = getattr(msg, f.name)
+        if is_dataclass(value):
+            yield from _flatten(value, f'{prefix}{f.name}.')
+        else:
+            yield f'{prefix}{f.name}', value
+
+
+def _getter(path: str) -> Callable[[Any], Any]:
+    parts = path.split('.')
+    if len(parts) == 1:
+        name = parts[0]
+        return lambda m: getattr(m, name)
+
+    def get(m: Any) -> Any:
+        for p in parts:
+            m = getattr(m, p)
+        return m
+    return get
+
+
+class Bag:
+    """An open bag: topics, custom data, messages, numpy columns and loss counts."""
+
+    def __init__(self, path: Path, reader: AnyReader) -> None:
+        self.path = path
+        self.reader = reader
+        self.topics: dict[str, str] = {name: info.msgtype
+                                       for name, info in reader.topics.items()}
+        self.message_counts: dict[str, int] = {name: info.msgcount
+                                               for name, info in reader.topics.items()}
+        custom: dict[str, str] = {}
+        meta = path / 'metadata.yaml'
+        if meta.is_file():
+            try:
+                info = yaml.safe_load(meta.read_text(encoding='utf-8'))
+                custom = dict(info['rosbag2_bagfile_information'].get('custom_data') or {})
+            except (yaml.YAMLError, KeyError, TypeError, ValueError):
+                custom = {}
+        self.custom_data = custom
+
+    def close(self) -> None:
+        """Close the underlying reader."""
+        self.reader.close()
+
+    def __enter__(self) -> Bag:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def require(self, *topics: str) -> None:
+        """Raise :class:`BagError` naming the first of ``topics`` the bag does not hold."""
+        for t in topics:
+            if t not in self.topics:
+                raise BagError(f'{self.path}: bag has no {t!r} topic (it holds: '
+                               f'{", ".join(sorted(self.topics)) or "nothing"})')
+
+    def raw(self, topic: str,
+            progress: Callable[[int, int], None] | None = None
+            ) -> Iterator[tuple[int, bytes]]:
+        """Yield ``(bag timestamp ns, CDR bytes)`` of ``topic`` in time order."""
+        self.require(topic)
+        conns = [c for c in self.reader.connections if c.topic == topic]
+        total = self.message_counts.get(topic, 0)
+        try:
+            for i, (_, ts, data) in enumerate(self.reader.messages(connections=conns)):
+                if progress is not None and i % 5000 == 0:
+                    progress(i, total)
+                yield ts, data
+        except Exception as exc:  # rosbags raises various errors on damaged storage
+            raise BagError(f'{self.path}: cannot read {topic!r}: {_one_line(exc)}') from None
+        if progress is not None:
+            progress(total, total)
+
+    def messages(self, topic: str) -> Iterator[tuple[int, Any]]:
+        """Yield ``(bag timestamp ns, deserialized message)`` of ``topic``."""
+        msgtype = self.topics.get(topic)
+        for ts, data in self.raw(topic):
+            yield ts, self.reader.deserialize(data, msgtype)
+
+    def columns(self, topic: str, names: Iterable[str] | None = None,
+                progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+        """Read ``topic`` into ``{flattened field: array}`` plus ``timestamp_ns``.
+
+        Nested fields are joined with dots (``header.stamp.sec``); ``stamp_s`` is added when
+        the message has a header. Sequences (e.g. diagnostics' status list) stay objects.
+        """
+        msgtype = self.topics.get(topic)
+        self.require(topic)
+        stamps: list[int] = []
+        datas: list[bytes] = []
+        for ts, data in self.raw(topic, progress):
+            stamps.append(ts)
+            datas.append(data)
+        try:
+            packer = _packer(msgtype, self.reader.typestore)
+        except (BagError, KeyError):
+            packer = None
+        cols: dict[str, Any] = {}
+        if packer is not None and datas:
+            cols = packer.unpack(datas, names)
+        if not cols:
+            cols = self._slow_columns(msgtype, datas, names)
+        out: dict[str, np.ndarray] = {'timestamp_ns': np.asarray(stamps, dtype=np.int64)}
+        for k, v in cols.items():
+            out[k] = v if isinstance(v, np.ndarray) else _to_array(v)
+        if 'header.stamp.sec' in out:
+            out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
+        return out
+
+    def _slow_columns(self, msgtype: str, datas: list[bytes],
+                      names: Iterable[str] | None) -> dict[str, list]:
+        deserialize = self.reader.typestore.deserialize_cdr
+        cols: dict[str, list] = {}
+        getters: list[tuple[list, Callable[[Any], Any]]] | None = None
+        for data in datas:
+            msg = deserialize(data, msgtype)
+            if getters is None:
+                keys = [k for k, _ in _flatten(msg)]
+                if names is not None:
+                    wanted = set(names)
+                    keys = [k for k in keys if k in wanted]
+                for k in keys:
+                    cols[k] = []
+                getters = [(cols[k], _getter(k)) for k in keys]
+            for col, get in getters:
+                col.append(get(msg))
+        return cols
+
+    def seq_loss(self, topic: str) -> tuple[int, int]:
+        """Return ``(received, lost)`` of a counter topic: lost = sum of gaps in its seq."""
+        self.require(topic)
+        seq = np.fromiter((seq_of(data) for _, data in self.raw(topic)), dtype=np.int64)
+        return int(seq.size), count_lost(seq)
+
+
+def _to_array(values: list) -> np.ndarray:
+    if values and isinstance(values[0], (bool, np.bool_)):
+        return np.asarray(values, dtype=bool)
+    if values and isinstance(values[0], (int, float, np.integer, np.floating)):
+        return np.asarray(values)
+    out = np.empty(len(values), dtype=object)
+    out[:] = values
+    return out
+
+
+def _one_line(exc: BaseException) -> str:
+    text = ' '.join(str(exc).split()) or type(exc).__name__
+    return text if len(text) < 300 else text[:297] + '...'
+
+
+def seq_of(data: bytes | memoryview) -> int:
+    """Return the uint64 right after the std_msgs/Header of a CDR message (its seq/tick).
+
+    CDR: 4-byte encapsulation, header stamp (int32 + uint32), frame_id (uint32 length incl.
+    NUL + bytes), then the uint64 aligned to 8 relative to the end of the encapsulation.
+    """
+    n = struct.unpack_from('<I', data, 12)[0]
+    off = 8 + 4 + n
+    off += -off % 8
+    return struct.unpack_from('<Q', data, 4 + off)[0]
+
+
+def count_lost(seq: np.ndarray) -> int:
+    """Count the values skipped in an increasing ``seq`` (a restart counts nothing)."""
+    if seq.size < 2:
+        return 0
+    d = np.diff(seq.astype(np.int64))
+    return int(np.sum(d[d > 1] - 1))
+
+
+def open_bag(path: str | Path) -> Bag:
+    """Open a bag folder (or a file inside it); :class:`BagError` on anything unreadable."""
+    p = Path(path)
+    if not p.exists():
+        raise BagError(f'{p}: no such file or folder')
+    if p.is_file() and p.suffix != '.bag':
+        if (p.parent / 'metadata.yaml').is_file():
+            p = p.parent
+        else:
+            raise BagError(f'{p}: not a rosbag2 bag (no metadata.yaml beside it)')
+    elif p.is_dir() and not (p / 'metadata.yaml').is_file():
+        raise BagError(f'{p}: not a rosbag2 bag folder (no metadata.yaml)')
+    try:
+        reader = AnyReader([p])
+        reader.open()
+    except Exception as exc:  # AnyReaderError, ReaderError, yaml and storage errors
+        raise BagError(f'{p}: cannot open bag: {_one_line(exc)}') from None
+    return Bag(p, reader)
+
+
+def read_text_topic(bag: Bag, topic: str) -> str | None:
+    """Return the last std_msgs/String ``data`` on ``topic``; None when absent."""
+    if topic not in bag.topics:
+        return None
+    text = None
+    for _, msg in bag.messages(topic):
+        text = msg.data
+    return text
+
+
+def string_msg(text: str, typestore: Any = None) -> Any:
+    """Return a rosbags std_msgs/String."""
+    store = typestore or ladrc_typestore()
+    return store.types['std_msgs/msg/String'](data=text)
+
+
+def storage_of(name: str) -> str:
+    """Validate a storage name (``mcap`` or ``sqlite3``)."""
+    if name not in STORAGES:
+        raise BagError(f'unknown storage {name!r}: use one of {", ".join(STORAGES)}')
+    return name
+
+
+__all__ = ['Bag', 'BagError', 'BagWriter', 'count_lost', 'open_bag', 'read_text_topic',
+           'seq_of', 'string_msg', 'TOPIC_QOS', 'TOPIC_TYPES', 'SEQ_FIELD', 'make_qos']

@@ -1,0 +1,213 @@
+"""Bring-up without ros2cli: the sim node, the follow node and the recorder as processes.
+
+``bringup --scenario showcase --params config/follow.yaml --bag out/run1`` starts each node as a
+separate process on an isolated DDS domain (its own ``ROS_DOMAIN_ID``, localhost discovery),
+waits until the simulator has played its scenario (or Ctrl-C), then stops them in the safe
+order: the controller first (it commands zero velocity), then the simulator, then the recorder
+(so the bag holds the stop). ``launch/bringup.launch.py`` starts the same nodes with the same
+arguments from :func:`node_specs` on a stock Jazzy install.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+import json
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import time
+
+SIM_TIMEOUT_S = 0.05
+
+
+@dataclass
+class NodeSpec:
+    """One node of the bring-up: package, executable and its ``--ros-args``."""
+
+    package: str
+    executable: str
+    name: str
+    ros_args: list[str] = field(default_factory=list)
+    parameters: dict[str, object] = field(default_factory=dict)
+    params_file: str | None = None
+
+
+def default_params_file() -> str:
+    """Return the shipped controller parameter file (install space, else the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        path = Path(get_package_share_directory('ladrc_tools')) / 'config' / 'follow.yaml'
+        if path.is_file():
+            return str(path)
+    except (ImportError, LookupError, ValueError):
+        pass
+    # <root>/ros2_ws/src/ladrc_tools/ladrc_tools/bringup/bringup.py -> ros2_ws/src/ladrc_tools
+    return str(Path(__file__).resolve().parents[2] / 'config' / 'follow.yaml')
+
+
+def node_specs(scenario: str, params_file: str | None = None, bag: str | None = None,
+               loop: str = 'deadline', storage: str = 'mcap') -> list[NodeSpec]:
+    """Return the nodes of a simulated run: the one configuration bringup and launch share."""
+    specs = []
+    if bag:
+        specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder',
+                              parameters={'output': bag, 'storage': storage,
+                                          'scenario': scenario}))
+    # A simulated run puts three Python processes at 2 kHz on the machine (sim, controller,
+    # recorder); on a 2-core machine their scheduling gaps reach tens of ms (docs/follow-node.md).
+    # The simulated drive's watchdog and the controller's stale-input limit are widened to
+    # SIM_TIMEOUT_S here so a run measures control, not the scheduler; a real axis keeps the
+    # tight defaults (10 ms).
+    specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',
+                          parameters={'loop': loop, 'follow.stale_timeout_s': SIM_TIMEOUT_S},
+                          params_file=params_file or default_params_file()))
+    sim = {'scenario': scenario, 'exit_at_end': True, 'watchdog_timeout_s': SIM_TIMEOUT_S}
+    if bag:  # the bag holds the run from its first tick
+        sim.update({'wait_for_recorder_s': 10.0, 'start_delay_s': 1.0})
+    specs.append(NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters=sim))
+    return specs
+
+
+def ros_arguments(spec: NodeSpec) -> list[str]:
+    """Return the ``--ros-args`` list of a node spec."""
+    args = ['--ros-args']
+    if spec.params_file:
+        args += ['--params-file', spec.params_file]
+    for key, value in spec.parameters.items():
+        text = json.dumps(value) if isinstance(value, bool) else str(value)
+        args += ['-p', f'{key}:={text}']
+    return args + spec.ros_args
+
+
+def executable_path(package: str, executable: str) -> str:
+    """Find an installed console script as ``ros2 run`` would (``<prefix>/lib/<pkg>/<exe>``)."""
+    try:
+        from ament_index_python.packages import get_package_prefix
+
+        path = Path(get_package_prefix(package)) / 'lib' / package / executable
+        if path.exists():
+            return str(path)
+    except (ImportError, LookupError, ValueError):
+        pass
+    raise FileNotFoundError(f'{package}/{executable} is not installed (build the workspace: '
+                            'scripts/setup-env)')
+
+
+def isolated_env(domain_id: int | None = None) -> dict[str, str]:
+    """Environment of the node processes: own DDS domain, localhost-only discovery."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain_id if domain_id is not None else random.randint(1, 101))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.pop('ROS_LOCALHOST_ONLY', None)
+    env.setdefault('PYTHONUNBUFFERED', '1')
+    return env
+
+
+class Bringup:
+    """Start node processes from specs; stop them in order; never leave one behind."""
+
+    def __init__(self, specs: list[NodeSpec], env: dict[str, str], log_dir: Path | None = None):
+        self.specs = specs
+        self.env = env
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self) -> None:
+        """Start every node (in spec order: recorder first, simulator last)."""
+        for spec in self.specs:
+            cmd = [executable_path(spec.package, spec.executable)] + ros_arguments(spec)
+            out = None
+            if self.log_dir is not None:
+                self.log_dir.mkdir(parents=True, exist_ok=True)
+                out = open(self.log_dir / f'{spec.name}.log', 'wb')  # noqa: SIM115
+            self.procs[spec.name] = subprocess.Popen(
+                cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT if out else None,
+                start_new_session=True)
+            if out is not None:
+                out.close()
+
+    def wait(self, name: str, timeout_s: float | None) -> int | None:
+        """Wait for one node to exit by itself; None on timeout."""
+        try:
+            return self.procs[name].wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop(self, order: list[str] | None = None, timeout_s: float = 10.0) -> dict[str, int]:
+        """SIGINT each node in ``order`` (default: controller, simulator, recorder)."""
+        order = order or ['ladrc_follow', 'ladrc_sim', 'ladrc_recorder']
+        codes: dict[str, int] = {}
+        for name in order + [n for n in self.procs if n not in order]:
+            proc = self.procs.get(name)
+            if proc is None:
+                continue
+            codes[name] = interrupt_process(proc, timeout_s)
+        return codes
+
+
+def interrupt_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
+    """SIGINT a node process (it commands zero and shuts down); SIGKILL its group if it hangs."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return proc.returncode
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``bringup``."""
+    ap = argparse.ArgumentParser(prog='bringup', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--scenario', default='showcase',
+                    help='scenario name (shipped library) or YAML path [showcase]')
+    ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')
+    ap.add_argument('--bag', default=None, help='record a bag to this folder (must not exist)')
+    ap.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
+    ap.add_argument('--loop', default='deadline', choices=['deadline', 'timer'])
+    ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID [random 1..101]')
+    ap.add_argument('--timeout', type=float, default=600.0,
+                    help='stop after this many seconds even if the scenario has not ended')
+    ap.add_argument('--logs', default=None, help="folder for the nodes' output [terminal]")
+    args = ap.parse_args(argv)
+
+    if args.bag and Path(args.bag).exists():
+        print(f'bringup: {args.bag} exists; choose a new bag folder', file=sys.stderr)
+        return 2
+    specs = node_specs(args.scenario, args.params, args.bag, args.loop, args.storage)
+    env = isolated_env(args.domain_id)
+    up = Bringup(specs, env, Path(args.logs) if args.logs else None)
+    interrupted = [False]
+
+    def _interrupt(_signum, _frame):
+        interrupted[0] = True
+
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
+    print(f'bringup: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} scenario={args.scenario}',
+          file=sys.stderr)
+    try:
+        up.start()
+        deadline = time.monotonic() + args.timeout
+        while not interrupted[0] and time.monotonic() < deadline:
+            if up.wait('ladrc_sim', 0.2) is not None:
+                break
+            if any(p.poll() is not None for n, p in up.procs.items() if n != 'ladrc_sim'):
+                print('bringup: a node exited early: '
+                      + ', '.join(f'{n}={p.returncode}' for n, p in up.procs.items()
+                                  if p.poll() is not None), file=sys.stderr)
+                break
+    finally:
+        codes = up.stop()
+    print(json.dumps({'bag': args.bag, 'exit_codes': codes}))
+    return 0 if all(c in (0, -2, 130) for c in codes.values()) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

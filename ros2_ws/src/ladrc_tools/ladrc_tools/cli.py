@@ -1,0 +1,396 @@
+"""``ladrc``: the user CLI (simulate, replay, report, export, suite, params).
+
+Every subcommand is one entry of :data:`COMMANDS` (name -> (help, add-arguments, run)); add a
+subcommand by adding an entry. Bad input (missing file, truncated/foreign bag, missing topic,
+unknown parameter) ends with ONE line on stderr and exit code 2, no traceback, and nothing
+half-written (outputs are built under a temporary name and renamed when complete).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+import sys
+from typing import Any, Callable
+
+from .bags.bag import BagError
+
+EXIT_USAGE = 2
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit code 2."""
+
+
+# ---- report / export ----------------------------------------------------------------------
+def _add_report(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bag', help='bag folder (or a file inside it)')
+    p.add_argument('-o', '--output', help='output folder (default: <bag>_report)')
+    p.add_argument('-q', '--quiet', action='store_true', help='no progress on stderr')
+
+
+def _run_report(a: argparse.Namespace) -> int:
+    from .offline.report import write_report
+
+    out = write_report(a.bag, a.output, progress=not a.quiet)
+    report = json.loads((out / 'report.json').read_text())
+    print(json.dumps({'report': str(out), 'messages_lost': report['messages_lost'],
+                      **report['metrics'], 'timing': report['timing']}))
+    return 0
+
+
+def _add_export(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bag', help='bag folder (or a file inside it)')
+    p.add_argument('-o', '--output', help='output folder (default: <bag>_csv)')
+    p.add_argument('-q', '--quiet', action='store_true', help='no progress on stderr')
+
+
+def _run_export(a: argparse.Namespace) -> int:
+    from .offline.export import export_csv
+    from .offline.report import stderr_progress
+
+    files = export_csv(a.bag, a.output, progress=None if a.quiet else stderr_progress)
+    for f in files:
+        print(f)
+    return 0
+
+
+# ---- simulate -----------------------------------------------------------------------------
+def _add_simulate(p: argparse.ArgumentParser) -> None:
+    p.add_argument('scenario', help='scenario YAML file or shipped scenario name')
+    p.add_argument('--params', help='controller parameter YAML (default: built-in defaults)')
+    p.add_argument('--controller', choices=('ladrc', 'pid'), default='ladrc',
+                   help='follow mode of the controller (default: ladrc)')
+    p.add_argument('-o', '--output', help='bag folder to write (default: no bag)')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='bag storage (default: mcap)')
+
+
+def make_controller(kind: str, params: Any) -> Any:
+    """Return a FollowController for ``kind`` (``ladrc`` | ``pid``) with ``params``."""
+    try:
+        from ladrc_follow.control.follow import FollowController
+    except ImportError as exc:
+        raise CliError(f'the follow controller is not available yet ({exc})') from None
+    try:
+        return FollowController(params, mode=kind)
+    except TypeError:
+        return FollowController(params)
+
+
+def _run_simulate(a: argparse.Namespace) -> int:
+    from ladrc_follow.control.params import (
+        ControllerParams,
+        ParameterError,
+        dump_params,
+        load_params,
+    )
+    from ladrc_sim.headless.runner import run, summary
+    from ladrc_sim.headless.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(a.scenario)
+    except (ScenarioError, OSError) as exc:
+        raise CliError(str(exc).splitlines()[0]) from None
+    try:
+        params = load_params(a.params) if a.params else ControllerParams()
+    except ParameterError as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    if a.output and Path(a.output).exists():
+        raise CliError(f'{a.output} exists already: a bag is never overwritten')
+    controller = make_controller(a.controller, params)
+    result = run(scenario, controller, record_internals=True)
+    out = summary(result)
+    if a.output:
+        from .bags.bag import write_run_bag
+
+        scenario_text = _scenario_text(a.scenario, scenario)
+        write_run_bag(result, a.output, dump_params(params), scenario_text,
+                      storage=a.storage, controller=a.controller)
+        out = {'bag': a.output, **out}
+    from .offline.report import strict_json
+
+    print(json.dumps(strict_json(dict(out))))
+    return 0
+
+
+def _scenario_text(arg: str, scenario: Any) -> str:
+    p = Path(arg)
+    if p.is_file():
+        return p.read_text(encoding='utf-8')
+    source = getattr(scenario, 'source', None)
+    if source and Path(source).is_file():
+        return Path(source).read_text(encoding='utf-8')
+    try:
+        from ladrc_sim.headless.scenario import list_scenarios
+
+        for f in list_scenarios():
+            if f.stem == arg:
+                return f.read_text(encoding='utf-8')
+    except ImportError:
+        pass
+    return f'name: {getattr(scenario, "name", arg)}\n'
+
+
+# ---- suite --------------------------------------------------------------------------------
+def _add_suite(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--scenarios', help='comma-separated scenario names or YAML paths '
+                   '(default: the whole shipped library)')
+    p.add_argument('--variants', help='comma-separated controller variants (default: all: '
+                   'pid, ladrc, ladrc_comp, ladrc_kalman, ladrc_98, ladrc_146)')
+    p.add_argument('--params', help='base parameter YAML the variants modify '
+                   '(default: the shipped defaults)')
+    p.add_argument('-o', '--output', default='suite_results',
+                   help='folder for suite.md, suite.json, suite.csv (default: suite_results)')
+    p.add_argument('--jobs', type=int, default=2, help='worker processes (default: 2)')
+    p.add_argument('--quick', action='store_true',
+                   help='cut every scenario to 3 s (smoke test, not the quality figures)')
+    p.add_argument('-q', '--quiet', action='store_true', help='no progress on stderr')
+
+
+def _run_suite(a: argparse.Namespace) -> int:
+    from ladrc_follow.control.params import ParameterError, load_params
+
+    from .offline.suite import SuiteError, markdown_table, summary, timed_suite, write_outputs
+
+    def split(v: str | None) -> list[str] | None:
+        return [x.strip() for x in v.split(',') if x.strip()] if v else None
+
+    try:
+        base = load_params(a.params) if a.params else None
+    except (ParameterError, OSError) as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    if a.jobs < 1:
+        raise CliError(f'--jobs must be >= 1, got {a.jobs}')
+
+    def progress(row) -> None:
+        if not a.quiet:
+            print(f'{row.scenario}/{row.variant}: {row.final_state} ({row.wall_s:.1f} s)',
+                  file=sys.stderr)
+
+    try:
+        rows, wall = timed_suite(scenarios=split(a.scenarios), variants=split(a.variants),
+                                 base_params=base, jobs=a.jobs, quick=a.quick,
+                                 progress=progress)
+    except SuiteError as exc:
+        raise CliError(str(exc)) from None
+    command = ' '.join(['ladrc suite'] + [f'--{k} {v}' for k, v in (
+        ('scenarios', a.scenarios), ('variants', a.variants), ('params', a.params),
+        ('jobs', a.jobs)) if v] + (['--quick'] if a.quick else []) + ['-o', str(a.output)])
+    write_outputs(rows, a.output, command)
+    print(markdown_table(rows))
+    print(json.dumps({'output': str(a.output), **summary(rows, wall)}))
+    return 0
+
+
+# ---- replay -------------------------------------------------------------------------------
+def _add_replay(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bag', help='bag folder (or a file inside it)')
+    p.add_argument('--params', metavar='FILE',
+                   help="what-if: replay with this parameter YAML instead of the bag's own")
+    p.add_argument('--set', metavar='KEY=VALUE', action='append', default=[],
+                   help='what-if: override one parameter (repeatable), e.g. --set law.kp=12')
+    p.add_argument('--controller', choices=('ladrc', 'pid'),
+                   help='what-if: follow mode (default: as recorded)')
+    p.add_argument('-o', '--output', metavar='DIR',
+                   help='output folder (what-if default: <bag>_whatif; own replay: '
+                        'replay.json only when given)')
+    p.add_argument('--no-internals', action='store_true',
+                   help='compare the command only (faster; skips the ESO/state fields)')
+
+
+def _run_replay(a: argparse.Namespace) -> int:
+    from ladrc_follow.control.params import ParameterError
+
+    from .offline.replay import (
+        OPEN_LOOP_NOTE,
+        ReplayError,
+        compare,
+        load_recording,
+        parse_set,
+        replay,
+        whatif_params,
+        write_whatif,
+    )
+    from .offline.report import strict_json
+
+    whatif = bool(a.params or a.set or a.controller)
+    try:
+        overrides = parse_set(a.set)
+        out = Path(a.output) if a.output else None
+        if whatif and out is None:
+            out = Path(str(Path(a.bag)).rstrip('/') + '_whatif')
+        if out is not None and out.exists():
+            raise CliError(f'{out} exists already: outputs are never overwritten')
+        rec = load_recording(a.bag)
+        if whatif:
+            params = whatif_params(rec, a.params, overrides)
+            source = ' + '.join(x for x in (
+                f'--params {a.params}' if a.params else f'bag set ({rec.params_source})',
+                ' '.join(f'--set {s}' for s in a.set),
+                f'--controller {a.controller}' if a.controller else '') if x)
+            res = replay(rec, params, overrides=overrides or None, mode=a.controller,
+                         params_source=source)
+        else:
+            res = replay(rec, record_internals=not a.no_internals)
+    except (ReplayError, ParameterError) as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    summary = compare(rec, res)
+    print(f'bag: {rec.path} ({rec.source or "unknown source"}, ticks {summary["start_tick"]}'
+          f'..{summary["end_tick"]}, {summary["ticks"]} replayed at '
+          f'{summary["ticks_per_s"]:.0f} ticks/s)')
+    print(f'parameters: {res.params_source}')
+    for note in rec.notes + res.notes:
+        print(f'note: {note}')
+    for r in res.rejected:
+        print(f'rejected by the replayed controller: {r}')
+    if summary['missing_ticks']:
+        print(f'{summary["missing_ticks"]} tick(s) missing: exact replay holds only up to tick '
+              f'{summary["exact_until_tick"]}; {summary["mismatches_after_gap"]} mismatch(es) '
+              'after it (the controller cannot be stepped over ticks the bag lacks)')
+    if whatif:
+        from .offline.replay import whatif_table
+
+        table = whatif_table(rec, res)
+        written = write_whatif(rec, res, out)
+        print(f'what-if ({OPEN_LOOP_NOTE})')
+        print(f'command RMS recorded {table["command_rms_recorded_mm_s"]:.4g} mm/s, what-if '
+              f'{table["command_rms_whatif_mm_s"]:.4g} mm/s; difference RMS '
+              f'{table["command_rms_difference_mm_s"]:.4g} mm/s, max '
+              f'{table["command_max_difference_mm_s"]:.4g} mm/s')
+        print(f'limit hits (v, a) recorded {tuple(table["limit_hits_recorded"].values())}, '
+              f'what-if {tuple(table["limit_hits_whatif"].values())}')
+        print(f'written: {written}/whatif.md, whatif.png, whatif.json, params.yaml')
+        line = {'mode': 'what-if', **summary, 'open_loop': True,
+                'command_rms_difference_mm_s': table['command_rms_difference_mm_s'],
+                'command_max_difference_mm_s': table['command_max_difference_mm_s'],
+                'output': str(written)}
+        print(json.dumps(strict_json(line)))
+        return 0
+    ok = summary['mismatches'] == 0 and summary['missing_ticks'] == 0
+    if summary['mismatches']:
+        fm = summary['first_mismatch']
+        print(f'MISMATCH: {summary["mismatches"]} tick(s) differ bit for bit, first at tick '
+              f'{summary["first_mismatch_tick"]} (recorded {fm["recorded_mm_s"]!r}, replayed '
+              f'{fm["replayed_mm_s"]!r} mm/s)')
+    elif summary['missing_ticks']:
+        print(f'bit-for-bit up to tick {summary["exact_until_tick"]} (the first missing tick); '
+              'NOT verified after it')
+    else:
+        print(f'bit-for-bit: all {summary["ticks"]} commands reproduced')
+    if summary['internal_mismatch_ticks']:
+        print(f'internals differ on {summary["internal_mismatch_ticks"]} tick(s): '
+              f'{summary["internal_mismatch_fields"]}')
+    line = {'mode': 'own', **summary}
+    if out is not None:
+        tmp = out.with_name(f'.{out.name}.partial')
+        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / 'replay.json').write_text(json.dumps(strict_json(line), indent=1))
+        tmp.replace(out)
+        line['output'] = str(out)
+    print(json.dumps(strict_json(line)))
+    return 0 if ok else 1
+
+
+# ---- params -------------------------------------------------------------------------------
+PARAMETERS_DOC_HEAD = """# Parameters
+
+GENERATED by `scripts/in-env ladrc params --markdown > docs/parameters.md` from the one
+declaration of each parameter (`param(...)` fields in `ladrc_follow/control/`); a test fails
+when this page is stale. The same declarations give the YAML loading and validation, the ROS
+parameter descriptors of the follow node (range, unit, `read_only`) and the shipped parameter
+file `ladrc_tools/config/follow.yaml` (`ladrc params --yaml`).
+
+Ranges: `(a, b]` means a < value <= b. Every number has finite bounds; a value outside them,
+a non-finite value or a wrong type is rejected with its reason and the running values stay.
+The checks that relate several parameters (discrete stability of the TDs and the observer,
+kp·h < 1, contradicting limits, the follow windows) are in `ladrc_follow/control/params.py`
+(`CROSS_CHECKS`). "start-up" parameters are `read_only` on the node.
+
+"""
+
+
+def parameters_doc() -> str:
+    """Return docs/parameters.md: the header and the generated table."""
+    from ladrc_follow.control.params import ControllerParams
+    from ladrc_follow.control.schema import markdown_table
+
+    return PARAMETERS_DOC_HEAD + markdown_table(ControllerParams())
+
+
+def _add_params(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument('--yaml', action='store_true',
+                   help='the default parameter file (ROS 2 layout, commented)')
+    g.add_argument('--markdown', action='store_true', help='docs/parameters.md')
+    g.add_argument('--check', metavar='FILE', help='load and validate a parameter file')
+
+
+def _run_params(a: argparse.Namespace) -> int:
+    from ladrc_follow.control.params import ParameterError, load_params, parameter_file
+
+    if a.check:
+        try:
+            load_params(a.check)
+        except ParameterError as exc:
+            raise CliError(' | '.join(exc.reasons)) from None
+        print(f'{a.check}: valid')
+    elif a.yaml:
+        sys.stdout.write(parameter_file())
+    else:
+        sys.stdout.write(parameters_doc())
+    return 0
+
+
+# ---- the subcommands ----------------------------------------------------------------------
+# name -> (help, add arguments, run). Extend here.
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
+                          Callable[[argparse.Namespace], int]]] = {
+    'simulate': ('run a scenario headless (no ROS), print metrics, optionally write a bag',
+                 _add_simulate, _run_simulate),
+    'report': ('metrics, loop timing, loss and plots of a bag (report.md, report.json, PNGs)',
+               _add_report, _run_report),
+    'export': ('one CSV per topic of a bag', _add_export, _run_export),
+    'replay': ("re-run the controller on a bag's recorded inputs (bit-for-bit check, what-if)",
+               _add_replay, _run_replay),
+    'params': ('the controller parameters: default file, docs table, or check a file',
+               _add_params, _run_params),
+    'suite': ('run the scenario library for PID and LADRC variants; comparison table '
+              "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
+              _add_suite, _run_suite),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line + exit 2, as for every bad input
+        self.exit(EXIT_USAGE, f'{self.prog}: {message}\n')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the ``ladrc`` argument parser with one subparser per :data:`COMMANDS` entry."""
+    parser = _Parser(prog='ladrc', description='LADRC height-follow tools: headless '
+                     'simulation, bag replay, reports, CSV export and the quality suite.')
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True,
+                                parser_class=_Parser)
+    for name, (help_text, add, _) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        add(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``ladrc`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command][2](args)
+    except (CliError, BagError) as exc:
+        print(f'ladrc {args.command}: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f'ladrc {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""ROS layer of the tools: the bag recorder node."""

@@ -1,0 +1,68 @@
+"""CSV export of a bag: one CSV per topic, header row of flattened field names.
+
+Columns are ``timestamp_ns`` (bag time), the message's fields flattened with dots
+(``header.stamp.sec``) and ``stamp_s`` where the message has a header. Sequences (the
+diagnostics' status list) are written as their text. The output folder is written under a
+temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+import shutil
+from typing import Callable
+
+import numpy as np
+
+from ..bags.bag import BagError, open_bag
+
+
+def topic_filename(topic: str) -> str:
+    """``axis/capacitive_height`` -> ``axis__capacitive_height.csv`` (leading / dropped)."""
+    return topic.strip('/').replace('/', '__') + '.csv'
+
+
+def export_csv(bag_path: str | Path, out_dir: str | Path | None = None,
+               progress: Callable[[str], Callable[[int, int], None]] | None = None
+               ) -> list[Path]:
+    """Write one CSV per topic of the bag into ``out_dir`` (default ``<bag>_csv``)."""
+    bag_path = Path(bag_path)
+    out = Path(out_dir) if out_dir else bag_path.with_name(bag_path.name + '_csv')
+    if out.exists():
+        raise BagError(f'{out} exists already: choose another output folder (-o)')
+    tmp = out.with_name(f'.{out.name}.partial')
+    with open_bag(bag_path) as bag:
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        try:
+            names = []
+            for topic in sorted(bag.topics):
+                cols = bag.columns(topic, progress=progress(topic) if progress else None)
+                name = topic_filename(topic)
+                _write(tmp / name, cols)
+                names.append(name)
+            os.replace(tmp, out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return [out / n for n in names]
+
+
+def _write(path: Path, cols: dict[str, np.ndarray]) -> None:
+    keys = list(cols)
+    n = len(cols['timestamp_ns'])
+    with path.open('w', newline='', encoding='utf-8') as f:
+        w = csv.writer(f)
+        w.writerow(keys)
+        columns = []
+        for k in keys:
+            c = cols[k]
+            if c.dtype == bool:
+                c = c.astype(np.int8)  # 0/1: spreadsheets and numpy read it back as numbers
+            if c.dtype.kind == 'f':
+                columns.append([repr(float(x)) for x in c])
+            else:
+                columns.append(c.tolist())
+        w.writerows(zip(*columns, strict=True) if n else [])

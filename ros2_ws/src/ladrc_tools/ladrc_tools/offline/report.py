@@ -1,0 +1,296 @@
+"""Report of one bag (live or headless): metrics, loop timing, loss, PNG plots, Markdown + JSON.
+
+Metrics reuse ``ladrc_sim.headless.metrics`` on the bag's ``follow/status`` series: the error
+is taken against the true gap when the bag has ``sim/truth`` (interpolated onto the status
+stamps), else against the measured gap the controller used. The target counts only outside
+STATE_IDLE (the metrics' convention: NaN while not following). Limit hits come from
+``limit_flags``. The output folder is built under a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+import shutil
+import sys
+from typing import Any, Callable
+
+import numpy as np
+import yaml
+
+from ..bags.bag import SEQ_FIELD, Bag, BagError, count_lost, open_bag, read_text_topic, seq_of
+
+STATE_NAMES = ['IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT']
+LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
+
+
+def stderr_progress(label: str) -> Callable[[int, int], None]:
+    """Return a progress callback printing ``label NN%`` on stderr (one line, rewritten)."""
+    last = [-1]
+
+    def show(done: int, total: int) -> None:
+        pct = int(100 * done / total) if total else 100
+        if pct != last[0]:
+            last[0] = pct
+            end = '\n' if pct >= 100 else ''
+            print(f'\rreading {label}: {pct:3d}%', end=end, file=sys.stderr, flush=True)
+    return show
+
+
+def _find_key(data: Any, key: str) -> float | None:
+    if isinstance(data, dict):
+        for k, v in data.items():
+            if k == key and isinstance(v, (int, float)):
+                return float(v)
+            found = _find_key(v, key)
+            if found is not None:
+                return found
+    return None
+
+
+def _stats(x: np.ndarray) -> dict[str, float]:
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return {'p50': math.nan, 'p99': math.nan, 'max': math.nan}
+    return {'p50': float(np.percentile(x, 50)), 'p99': float(np.percentile(x, 99)),
+            'max': float(np.max(x))}
+
+
+def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``)."""
+    from ladrc_sim.headless import metrics as M
+
+    bag.require('follow/status')
+    prog = stderr_progress('follow/status') if progress else None
+    st = bag.columns('follow/status', progress=prog)
+    n_status = st['tick'].size if 'tick' in st else 0
+    if n_status < 2:
+        raise BagError(f'{bag.path}: follow/status holds {n_status} message(s); '
+                       'a report needs a run')
+    t = st['stamp_s'] - st['stamp_s'][0]
+    h_s = float(np.median(np.diff(st['stamp_s'])))
+    state = st['state'].astype(int)
+    target = st['target_gap_mm'].astype(float)
+    if np.any(state != 0):  # a controller that reports its state: no target while IDLE
+        target = np.where(state != 0, target, np.nan)
+    # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold zeros,
+    # which would squash the plots' scales.
+    active = np.isin(state, (3, 4)) if np.any(state != 0) else np.ones(state.size, bool)
+
+    def when_active(col: str) -> np.ndarray:
+        return np.where(active, st[col].astype(float), np.nan)
+
+    series: dict[str, np.ndarray] = {'t_s': t, 'gap_mm': st['gap_mm'], 'target_mm': target,
+                                     'td_x1_mm': when_active('td_x1_mm'), 'state': state,
+                                     'followed': st['followed'],
+                                     'velocity_mm_s': st['velocity_mm_s'],
+                                     'u_unlimited_mm_s': st['u_unlimited_mm_s'],
+                                     'eso_z1_mm': when_active('eso_z1_mm'),
+                                     'eso_z2': when_active('eso_z2'),
+                                     'eso_z3': when_active('eso_z3')}
+    gap = st['gap_mm'].astype(float)
+    gap_source = 'measured (follow/status gap_mm)'
+    collision = np.zeros(t.size, dtype=bool)
+    if 'sim/truth' in bag.topics and bag.message_counts.get('sim/truth', 0) > 1:
+        tr = bag.columns('sim/truth', ['header.stamp.sec', 'header.stamp.nanosec',
+                                       'true_gap_mm', 'collision'],
+                         progress=stderr_progress('sim/truth') if progress else None)
+        gap = np.interp(st['stamp_s'], tr['stamp_s'], tr['true_gap_mm'])
+        idx = np.clip(np.searchsorted(tr['stamp_s'], st['stamp_s']), 0, tr['stamp_s'].size - 1)
+        collision = tr['collision'][idx]
+        series['true_gap_mm'] = gap
+        gap_source = 'true (sim/truth)'
+    params_text = read_text_topic(bag, 'run/parameters') or ''
+    try:
+        params = yaml.safe_load(params_text) if params_text else None
+    except yaml.YAMLError:
+        params = None
+    v_max = _find_key(params, 'v_max_mm_s')
+    flags = st['limit_flags'].astype(np.int64)
+    internals = {'limit_v': (flags & LIMIT_VELOCITY) != 0,
+                 'limit_a': (flags & LIMIT_ACCELERATION) != 0}
+    m = M.compute_metrics(t, gap, target, collision, st['velocity_mm_s'], h_s=h_s,
+                          v_max_mm_s=v_max or math.inf, a_max_mm_s2=math.inf,
+                          internals=internals)
+    lost: dict[str, int] = {}
+    for topic in SEQ_FIELD:
+        if topic in bag.topics:
+            if topic == 'follow/status':
+                lost[topic] = count_lost(st['tick'].astype(np.int64))
+            else:
+                seq = np.fromiter((seq_of(d) for _, d in bag.raw(topic)), dtype=np.int64)
+                lost[topic] = count_lost(seq)
+    recording = None
+    rec_file = bag.path / 'recording.json' if bag.path.is_dir() else None
+    if rec_file is not None and rec_file.is_file():
+        try:
+            recording = json.loads(rec_file.read_text())
+        except (OSError, ValueError):
+            recording = None
+    report = {
+        'bag': str(bag.path),
+        'source': bag.custom_data.get('ladrc.source', 'unknown'),
+        'scenario': bag.custom_data.get('ladrc.scenario', ''),
+        'duration_s': float(t[-1]),
+        'ticks': int(t.size),
+        'h_s': h_s,
+        'error_against': gap_source,
+        'metrics': m.as_dict(),
+        'timing': {'period_us': _stats(st['period_us'].astype(float)),
+                   'compute_us': _stats(st['compute_us'].astype(float)),
+                   'input_age_us': _stats(st['input_age_us'].astype(float)),
+                   'overruns': int(np.count_nonzero(st['overrun']))},
+        'messages': dict(bag.message_counts),
+        'messages_lost': int(sum(lost.values())),
+        'messages_lost_by_topic': lost,
+        'v_max_mm_s': v_max,
+    }
+    if recording is not None:
+        report['recording'] = recording
+    return report, series
+
+
+def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    t = series['t_s']
+    names = []
+
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    ax.plot(t, series['gap_mm'], lw=0.6, label='measured gap')
+    if 'true_gap_mm' in series:
+        ax.plot(t, series['true_gap_mm'], lw=0.8, label='true gap')
+    ax.plot(t, series['td_x1_mm'], lw=0.8, ls='--', label='TD reference x1')
+    ax.plot(t, series['target_mm'], lw=1.0, color='k', label='target')
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel('gap [mm]')
+    ax.legend(loc='best', fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / 'gap.png', dpi=110)
+    plt.close(fig)
+    names.append('gap.png')
+
+    if 'true_gap_mm' in series:
+        fig, axs = plt.subplots(3, 1, figsize=(11, 7), sharex=True)
+        axs[0].plot(t, series['true_gap_mm'], lw=0.8, label='true gap')
+        axs[0].plot(t, series['eso_z1_mm'], lw=0.6, label='ESO z1')
+        axs[0].set_ylabel('gap [mm]')
+        rate = np.gradient(series['true_gap_mm'], t) if t.size > 1 else t * 0
+        axs[1].plot(t, rate, lw=0.5, label='true gap rate [mm/s]')
+        axs[1].plot(t, series['eso_z2'], lw=0.6, label='ESO z2')
+        axs[2].plot(t, series['eso_z3'], lw=0.6, label='ESO z3')
+        axs[2].set_xlabel('t [s]')
+        for a in axs:
+            a.legend(loc='best', fontsize=8)
+            a.grid(alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(out / 'eso.png', dpi=110)
+        plt.close(fig)
+        names.append('eso.png')
+
+    fig, ax = plt.subplots(figsize=(11, 4))
+    ax.plot(t, series['u_unlimited_mm_s'], lw=0.5, label='unlimited')
+    ax.plot(t, series['velocity_mm_s'], lw=0.7, label='sent')
+    v_max = report.get('v_max_mm_s')
+    if v_max:
+        for s in (1, -1):
+            ax.axhline(s * v_max, color='r', ls=':', lw=1,
+                       label='velocity limit' if s == 1 else None)
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel('velocity command [mm/s]')
+    ax.legend(loc='best', fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / 'command.png', dpi=110)
+    plt.close(fig)
+    names.append('command.png')
+
+    fig, ax = plt.subplots(figsize=(11, 2.8))
+    ax.step(t, series['state'], where='post', lw=1, label='state')
+    ax.fill_between(t, -0.4, -0.1, where=series['followed'].astype(bool), step='post',
+                    color='g', alpha=0.5, label='followed')
+    ax.set_yticks(range(len(STATE_NAMES)), STATE_NAMES)
+    ax.set_ylim(-0.5, len(STATE_NAMES) - 0.5)
+    ax.set_xlabel('t [s]')
+    ax.legend(loc='upper right', fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / 'state.png', dpi=110)
+    plt.close(fig)
+    names.append('state.png')
+    return names
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return 'n/a' if not math.isfinite(v) else f'{v:.4g}'
+    return str(v)
+
+
+def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
+    lines = [f'# Report: {Path(report["bag"]).name}', '',
+             f'- source: {report["source"]}' + (f', scenario `{report["scenario"]}`'
+                                                 if report['scenario'] else ''),
+             f'- duration: {report["duration_s"]:.3f} s, {report["ticks"]} ticks, '
+             f'h = {report["h_s"] * 1e3:.3f} ms',
+             f'- error against the {report["error_against"]} gap',
+             f'- messages lost (seq gaps): {report["messages_lost"]}', '',
+             '## Metrics', '', '| metric | value |', '| --- | --- |']
+    lines += [f'| {k} | {_fmt(v)} |' for k, v in report['metrics'].items()]
+    lines += ['', '## Loop timing', '', '| quantity | p50 | p99 | max |',
+              '| --- | --- | --- | --- |']
+    for k in ('period_us', 'compute_us', 'input_age_us'):
+        s = report['timing'][k]
+        lines.append(f'| {k} | {_fmt(s["p50"])} | {_fmt(s["p99"])} | {_fmt(s["max"])} |')
+    lines += ['', f'Overruns: {report["timing"]["overruns"]}', '', '## Plots', '']
+    lines += [f'![{p[:-4]}]({p})' for p in pngs]
+    return '\n'.join(lines) + '\n'
+
+
+def write_report(bag_path: str | Path, out_dir: str | Path | None = None,
+                 progress: bool = False) -> Path:
+    """Write ``report.md``, ``report.json`` and PNGs for a bag; return the output folder.
+
+    Default output: ``<bag>_report`` beside the bag. Refuses an existing output folder.
+    """
+    bag_path = Path(bag_path)
+    out = Path(out_dir) if out_dir else bag_path.with_name(bag_path.name + '_report')
+    if out.exists():
+        raise BagError(f'{out} exists already: choose another output folder (-o)')
+    with open_bag(bag_path) as bag:
+        report, series = analyse(bag, progress)
+    tmp = out.with_name(f'.{out.name}.partial')
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        pngs = _plots(series, report, tmp)
+        report['plots'] = pngs
+        (tmp / 'report.json').write_text(json.dumps(strict_json(report), indent=1) + '\n',
+                                         encoding='utf-8')
+        (tmp / 'report.md').write_text(_markdown(report, pngs), encoding='utf-8')
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def strict_json(v: Any) -> Any:
+    """Return ``v`` with numpy scalars as Python ones and NaN/inf as None (strict JSON)."""
+    if isinstance(v, dict):
+        return {str(k): strict_json(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [strict_json(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v

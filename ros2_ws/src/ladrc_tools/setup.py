@@ -1,0 +1,30 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'ladrc_tools'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='LADRC follow maintainers',
+    maintainer_email='maintainers@ladrc-follow.org',
+    description='Recorder, bags, replay, report, suite and bring-up of the LADRC height follow.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'ladrc = ladrc_tools.cli:main',
+            'recorder = ladrc_tools.node.recorder_node:main',
+            'bringup = ladrc_tools.bringup.bringup:main',
+        ],
+    },
+)

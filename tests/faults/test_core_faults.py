@@ -1,0 +1,124 @@
+"""Fault injection on the control core, headless: the fast subset of the safety issue's matrix.
+
+Each test drives the FollowController in closed loop with the axis model and corrupts its
+inputs the way a faulty sensor, driver or bug would; the nozzle must never reach the sheet and
+no command toward the sheet may follow a fault.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ladrc_follow.control.follow import FollowController
+from ladrc_follow.control.params import ControllerParams
+from loops import Loop
+import pytest
+
+FAULT, LADRC = 5, 4
+
+
+@pytest.fixture
+def loop():
+    """Return a loop following at 1.5 mm with the LADRC (started at 2.5 mm)."""
+    c = FollowController(ControllerParams())
+    lp = Loop(c, gap0_mm=2.5)
+    assert c.command('start_follow', target_gap_mm=1.5)[0]
+    lp.run_until(lambda: int(c.state) == LADRC, 6000)
+    lp.run(200)
+    return lp
+
+
+def first_fault(lp: Loop, start: int) -> int:
+    return next(i for i in range(start, len(lp.states)) if lp.states[i] == FAULT)
+
+
+def test_frozen_reading_with_fresh_stamps_faults_before_contact(loop):
+    """The issue's fault 1: the value freezes above the target, the stamps stay fresh."""
+    c, start = loop.c, len(loop.u)
+    frozen = loop.gap[-1] + 0.089   # reads 0.09 mm too wide: the law drives the nozzle down
+
+    def freeze(i, d):
+        d['gap_mm'] = frozen
+
+    loop.run(400, freeze)
+    assert int(c.state) == FAULT and 'frozen gap reading' in c.fault_reason
+    assert c.counts['frozen'] == 1
+    k = first_fault(loop, start)
+    assert min(loop.gap[start:]) > 0.7 * 1.5            # no dive toward the sheet
+    assert all(u >= 0.0 for u in loop.u[k:])             # nothing downward after the fault
+
+
+def test_no_new_sample_runs_on_the_encoder_prediction(loop):
+    """A sample is never used twice: ticks without a new one run on gap + Δencoder."""
+    c = loop.c
+    before = c.counts['predicted']
+    sheet_t = {}
+
+    def hold_every_other(i, d):
+        if i % 2:  # the sensor sends at 1 kHz: every other tick brings no new sample
+            d['gap_mm'], d['gap_stamp_s'] = sheet_t['gap'], sheet_t['stamp']
+        else:
+            sheet_t['gap'], sheet_t['stamp'] = d['gap_mm'], d['gap_stamp_s']
+
+    loop.run(400, hold_every_other)
+    assert int(c.state) == LADRC
+    assert c.counts['predicted'] - before == 200
+    assert abs(loop.gap[-1] - 1.5) < 0.02
+
+
+def test_a_fault_stops_motion_toward_the_sheet_at_once():
+    """An approach from 10 mm at speed; a sensor fault status: no ramp-down toward the sheet."""
+    c = FollowController(ControllerParams())
+    lp = Loop(c, gap0_mm=10.0)
+    c.command('start_follow', target_gap_mm=1.0)
+    lp.run_until(lambda: c.velocity_mm_s < -30.0, 4000)
+    start = len(lp.u)
+
+    def sensor_fault(i, d):
+        d['gap_valid'], d['gap_status'] = False, 3  # STATUS_FAULT
+
+    lp.run(40, sensor_fault)
+    assert int(c.state) == FAULT
+    assert all(u >= 0.0 for u in lp.u[start:])   # from the first invalid sample on
+
+
+@pytest.mark.parametrize('bad', [math.nan, math.inf])
+def test_non_finite_command_ends_in_fault_and_zero(loop, monkeypatch, bad):
+    c = loop.c
+    monkeypatch.setattr(c, '_ladrc_step', lambda *a: bad)
+    loop.run(3)
+    assert loop.u[-3:] == [0.0, 0.0, 0.0]
+    assert int(c.state) == FAULT and 'non-finite command' in c.fault_reason
+    assert c.counts['nonfinite'] == 1
+
+
+def test_exception_in_the_tick_ends_in_fault_and_zero(loop, monkeypatch):
+    c = loop.c
+
+    def boom(*a):
+        raise ZeroDivisionError('injected')
+
+    monkeypatch.setattr(c, '_ladrc_step', boom)
+    loop.run(2)
+    assert loop.u[-2:] == [0.0, 0.0]
+    assert int(c.state) == FAULT and 'ZeroDivisionError: injected' in c.fault_reason
+
+
+def test_collision_evidence_retracts_in_fault(loop):
+    """Already in FAULT (stale input), then the reading shows contact: retract anyway."""
+    c = loop.c
+
+    def stale(i, d):
+        d['gap_stamp_s'] = d['t_s'] - 1.0
+
+    loop.run(2, stale)
+    assert int(c.state) == FAULT and 'stale' in c.fault_reason
+    loop.run(20)
+    assert loop.u[-1] == 0.0
+
+    def contact(i, d):
+        d['gap_mm'], d['gap_valid'], d['gap_status'] = 0.0, False, 2  # STATUS_COLLISION
+
+    loop.run(40, contact)
+    assert 'collision while in FAULT' in c.fault_reason
+    assert loop.u[-1] > 0.0 and c.enable   # moving up, away from the sheet

@@ -1,0 +1,185 @@
+"""The package split holds: which layer may import what, and package.xml declares every import.
+
+Read from the source files (ast), nothing is imported:
+
+* ``control/``, ``models/``, ``headless/``, ``bags/``, ``offline/`` are pure: no rclpy;
+* ``ladrc_sim`` never imports ``ladrc_follow`` or ``ladrc_tools`` (the simulator does not know
+  the controller);
+* ``ladrc_follow`` (the controller) imports none of ``ladrc_sim``, ``ladrc_tools``, rosbags,
+  matplotlib, scipy;
+* each package's package.xml has a ``<depend>`` or ``<exec_depend>`` for every third-party
+  top-level module its Python files import (including imports inside functions).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+import sys
+import xml.etree.ElementTree as ET
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / 'ros2_ws' / 'src'
+PACKAGES = ('ladrc_follow', 'ladrc_sim', 'ladrc_tools')
+PURE_FOLDERS = ('control', 'models', 'headless', 'bags', 'offline')
+
+# top-level module -> rosdep key / ROS package name in package.xml
+DEPEND_KEY = {
+    'rclpy': 'rclpy',
+    'numpy': 'python3-numpy',
+    'scipy': 'python3-scipy',
+    'yaml': 'python3-yaml',
+    'matplotlib': 'python3-matplotlib',
+    'rosbags': 'python3-rosbags-pip',
+    'ladrc_msgs': 'ladrc_msgs',
+    'std_msgs': 'std_msgs',
+    'diagnostic_msgs': 'diagnostic_msgs',
+    'rcl_interfaces': 'rcl_interfaces',
+    'builtin_interfaces': 'builtin_interfaces',
+    'ament_index_python': 'ament_index_python',
+    'launch': 'launch',
+    'launch_ros': 'launch_ros',
+    'ladrc_follow': 'ladrc_follow',
+    'ladrc_sim': 'ladrc_sim',
+    'ladrc_tools': 'ladrc_tools',
+}
+RUN_DEPEND_TAGS = ('depend', 'exec_depend')
+# setup.py runs at build time (ament_python brings setuptools); it is not a run-time import.
+BUILD_ONLY = {'setup.py'}
+
+
+# ---- the checks, as functions of source text (so they can be tested on small examples) ------
+def imported_modules(source: str, filename: str = '<string>') -> set[str]:
+    """Return the top-level names of every absolute import in ``source`` (any nesting level)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(source, filename)):
+        if isinstance(node, ast.Import):
+            found.update(alias.name.split('.')[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module.split('.')[0])
+    return found
+
+
+def third_party(modules: set[str], own: str) -> set[str]:
+    """Drop the standard library and the package's own name from ``modules``."""
+    return {m for m in modules if m != own and m not in sys.stdlib_module_names
+            and m != '__future__'}
+
+
+def run_depends(package_xml: str) -> set[str]:
+    """Return the run-time dependencies (``depend``, ``exec_depend``) of a package.xml text."""
+    root = ET.fromstring(package_xml)
+    return {el.text.strip() for tag in RUN_DEPEND_TAGS for el in root.iter(tag) if el.text}
+
+
+def missing_depends(modules: set[str], package_xml: str) -> list[str]:
+    """Return one line per third-party module whose key is missing (or unknown to the map)."""
+    declared = run_depends(package_xml)
+    out = []
+    for m in sorted(modules):
+        key = DEPEND_KEY.get(m)
+        if key is None:
+            out.append(f'{m}: no package.xml key known for this module (add it to DEPEND_KEY)')
+        elif key not in declared:
+            out.append(f'{m}: package.xml lacks <exec_depend>{key}</exec_depend>')
+    return out
+
+
+# ---- the source tree ----------------------------------------------------------------------
+def _py_files(package: str) -> list[Path]:
+    return sorted(p for p in (SRC / package).rglob('*.py') if '__pycache__' not in p.parts)
+
+
+def _imports(path: Path) -> set[str]:
+    return imported_modules(path.read_text(encoding='utf-8'), str(path))
+
+
+def _rel(path: Path) -> str:
+    return str(path.relative_to(SRC))
+
+
+def test_the_three_packages_exist():
+    for pkg in PACKAGES:
+        assert (SRC / pkg / 'package.xml').is_file(), pkg
+        assert _py_files(pkg), pkg
+
+
+def test_pure_folders_do_not_import_rclpy():
+    pure = [p for pkg in PACKAGES for p in _py_files(pkg)
+            if any(part in PURE_FOLDERS for part in p.relative_to(SRC / pkg).parts[:-1])]
+    assert len(pure) >= 20  # the folders are where this test looks for them
+    offenders = [_rel(p) for p in pure if 'rclpy' in _imports(p)]
+    assert not offenders, f'pure layers import rclpy: {offenders}'
+
+
+def test_sim_does_not_know_the_controller_or_the_tools():
+    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_follow', 'ladrc_tools'})
+                 for p in _py_files('ladrc_sim')}
+    assert not {k: v for k, v in offenders.items() if v}
+
+
+@pytest.mark.parametrize('module', ['ladrc_sim', 'ladrc_tools', 'rosbags', 'matplotlib',
+                                    'scipy'])
+def test_controller_package_stays_lean(module):
+    offenders = [_rel(p) for p in _py_files('ladrc_follow') if module in _imports(p)]
+    assert not offenders, f'ladrc_follow imports {module}: {offenders}'
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_package_xml_declares_every_import(package):
+    modules: set[str] = set()
+    for p in _py_files(package):
+        if p.name not in BUILD_ONLY:
+            modules |= third_party(_imports(p), package)
+    xml = (SRC / package / 'package.xml').read_text(encoding='utf-8')
+    assert not missing_depends(modules, xml)
+
+
+# ---- the checks themselves, on small in-memory examples ------------------------------------
+EXAMPLE_XML = """<?xml version="1.0"?>
+<package format="3">
+  <name>demo</name>
+  <depend>rclpy</depend>
+  <exec_depend>python3-numpy</exec_depend>
+  <build_depend>python3-yaml</build_depend>
+  <test_depend>python3-scipy</test_depend>
+</package>
+"""
+EXAMPLE_SOURCE = """
+from __future__ import annotations
+import os.path
+import numpy as np
+from . import sibling
+from .sub.mod import thing
+from demo.other import x
+
+def late():
+    import yaml
+    from rclpy.node import Node
+"""
+
+
+def test_import_scan_finds_nested_and_skips_relative_imports():
+    mods = imported_modules(EXAMPLE_SOURCE)
+    assert mods == {'__future__', 'os', 'numpy', 'demo', 'yaml', 'rclpy'}
+    assert third_party(mods, own='demo') == {'numpy', 'yaml', 'rclpy'}
+
+
+def test_missing_key_is_reported():
+    mods = third_party(imported_modules(EXAMPLE_SOURCE), own='demo')
+    # yaml is only a build_depend: not a run-time dependency
+    assert missing_depends(mods, EXAMPLE_XML) == [
+        'yaml: package.xml lacks <exec_depend>python3-yaml</exec_depend>']
+    full = EXAMPLE_XML.replace('<build_depend>python3-yaml', '<exec_depend>python3-yaml') \
+                      .replace('</build_depend>', '</exec_depend>')
+    assert missing_depends(mods, full) == []
+    # removing any one key makes it fail again
+    for key in ('rclpy', 'python3-numpy'):
+        assert missing_depends(mods, full.replace(f'>{key}<', '>gone<'))
+
+
+def test_unknown_third_party_module_is_reported():
+    assert missing_depends({'pandas'}, EXAMPLE_XML) == [
+        'pandas: no package.xml key known for this module (add it to DEPEND_KEY)']
