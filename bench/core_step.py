@@ -5,8 +5,7 @@ and the Kalman filter switched on. Batch path: one ``step`` of N parameter sets 
 arrays; throughput as multiples of real time at h = 0.5 ms, counting all N controllers
 (N·h / wall time per batch step). Last line: one JSON object.
 
-Both are measured for the default generated (fused) tick and, for comparison, for the
-plain composition of the shared step functions (``fused=False``; keys ``*_plain``). The
+The tick is the plain composition of the step functions (``LADRC.step1`` / ``step2``); the
 1-minute load average is printed with the figures (the development VM is shared).
 
 Run: ``scripts/in-env python bench/core_step.py`` (or any Python with numpy + scipy + yaml).
@@ -32,8 +31,8 @@ def params() -> ControllerParams:
     return replace(ControllerParams(), kalman=KalmanParams(enabled=True))
 
 
-def scalar_step_us(repeats: int = 7, number: int = 50000, fused: bool = True) -> float:
-    c = LADRC(params(), fused=fused)
+def scalar_step_us(repeats: int = 7, number: int = 50000) -> float:
+    c = LADRC(params())
     c.reset(1.0, 0.0, 1.0, encoder_mm=0.0)
     gap, enc, target = 1.001, 0.0002, 1.0
     step = c.step
@@ -41,12 +40,12 @@ def scalar_step_us(repeats: int = 7, number: int = 50000, fused: bool = True) ->
     return statistics.median(times) / number * 1e6
 
 
-def batch_realtime_x(n: int, repeats: int = 7, fused: bool = True) -> tuple[float, float]:
+def batch_realtime_x(n: int, repeats: int = 7) -> tuple[float, float]:
     base = params()
     rng = np.random.default_rng(0)
     plist = [replace(base, law=replace(base.law, kp=float(k)))
              for k in rng.uniform(5.0, 20.0, size=n)]
-    c = LADRC.batch(plist, fused=fused)
+    c = LADRC.batch(plist)
     c.reset(np.ones(n), np.zeros(n), np.ones(n), encoder_mm=np.zeros(n))
     gap = 1.0 + 0.001 * rng.standard_normal(n)
     enc = np.zeros(n)
@@ -60,22 +59,17 @@ def batch_realtime_x(n: int, repeats: int = 7, fused: bool = True) -> tuple[floa
 def main() -> None:
     load = os.getloadavg()[0]
     us = scalar_step_us()
-    us_plain = scalar_step_us(number=20000, fused=False)
     print(f'scalar LADRC step (TD+ESO+Kalman+law+limits): {us:.2f} µs '
-          f'(target ≤ 3 µs; {0.0005e6 / us:.0f}× real time); plain composition {us_plain:.2f} µs')
-    batch, batch_plain = {}, {}
+          f'({0.0005e6 / us:.0f}× real time)')
+    batch = {}
     for n in (1, 100, 1000):
         x, t_us = batch_realtime_x(n)
-        xp, tp_us = batch_realtime_x(n, repeats=3, fused=False)
         batch[str(n)] = round(x, 1)
-        batch_plain[str(n)] = round(xp, 1)
-        print(f'batch N = {n:4d}: {t_us:8.1f} µs per step, {x:10.1f}× real time '
-              f'(plain composition {tp_us:8.1f} µs, {xp:10.1f}×)')
+        print(f'batch N = {n:4d}: {t_us:8.1f} µs per step, {x:10.1f}× real time')
     load = max(load, os.getloadavg()[0])
     print(f'1-minute load average: {load:.2f} on {os.cpu_count()} CPUs')
     print(json.dumps({'scalar_step_us': round(us, 3), 'batch_realtime_x': batch,
-                      'scalar_step_us_plain': round(us_plain, 3),
-                      'batch_realtime_x_plain': batch_plain, 'load_1min': round(load, 2)}))
+                      'load_1min': round(load, 2)}))
 
 
 if __name__ == '__main__':
