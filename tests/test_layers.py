@@ -183,3 +183,10 @@ def test_missing_key_is_reported():
 def test_unknown_third_party_module_is_reported():
     assert missing_depends({'pandas'}, EXAMPLE_XML) == [
         'pandas: no package.xml key known for this module (add it to DEPEND_KEY)']
+
+
+def test_the_realtime_helper_copies_stay_equal():
+    """The sim node carries the follow node's real-time helper (it may not import it)."""
+    follow = SRC / 'ladrc_follow' / 'ladrc_follow' / 'node' / 'realtime.py'
+    sim = SRC / 'ladrc_sim' / 'ladrc_sim' / 'node' / 'realtime.py'
+    assert follow.read_text(encoding='utf-8') == sim.read_text(encoding='utf-8')

@@ -122,3 +122,16 @@ def test_collision_evidence_retracts_in_fault(loop):
     loop.run(40, contact)
     assert 'collision while in FAULT' in c.fault_reason
     assert loop.u[-1] > 0.0 and c.enable   # moving up, away from the sheet
+
+
+def test_invalid_samples_interleaved_with_valid_ones_still_fault(loop):
+    """Every other sample invalid: no single run is long, the share is; and it is counted."""
+    c = loop.c
+
+    def every_other(i, d):
+        if i % 2:
+            d['gap_valid'], d['gap_status'], d['gap_mm'] = False, 3, float('nan')
+
+    loop.run(200, every_other)
+    assert int(c.state) == FAULT and 'invalid too often' in c.fault_reason
+    assert c.counts['invalid'] > 10

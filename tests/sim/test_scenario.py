@@ -73,3 +73,14 @@ def test_missing_file_and_empty_file(tmp_path):
     empty.write_text('')
     with pytest.raises(ScenarioError, match='empty'):
         load_scenario(empty)
+
+
+def test_binary_and_deeply_nested_files_are_one_line_errors(tmp_path):
+    binary = tmp_path / 'binary.yaml'
+    binary.write_bytes(bytes(range(256)) * 8)
+    deep = tmp_path / 'deep.yaml'
+    deep.write_text('x: ' + '[' * 5000 + ']' * 5000)
+    for path, expect in ((binary, 'not a text (UTF-8) file'), (deep, 'nested too deeply')):
+        with pytest.raises(ScenarioError) as info:
+            load_scenario(path)
+        assert expect in str(info.value) and '\n' not in str(info.value)

@@ -195,7 +195,9 @@ class FollowController:
         self._acc_enc = math.nan
         self._same_n = 0
         self._same_enc0 = math.nan
-        self.counts = {'predicted': 0, 'frozen': 0, 'invalid': 0, 'nonfinite': 0}
+        self._invalid_rate = 0.0   # low-passed share of invalid samples
+        self.counts = {'predicted': 0, 'frozen': 0, 'invalid': 0, 'out_of_range': 0,
+                       'nonfinite': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
     # ------------------------------------------------------------------ parameters
@@ -229,6 +231,8 @@ class FollowController:
         self._invalid_max = _ticks(f.invalid_timeout_s, h)
         self._miss_max = _ticks(f.miss_panel_s, h)
         self._edge = f.edge_drop_mm
+        self._c_rate = h / (f.invalid_rate_tau_s + h)  # backward-Euler low-pass, as pid.py
+        self._rate_max = f.invalid_rate_max
         self._frozen_n = f.frozen_ticks
         self._frozen_mm = f.frozen_travel_mm
         self._c_edge = h / (f.edge_ref_tau_s + h)  # backward-Euler low-pass, as pid.py
@@ -653,6 +657,7 @@ class FollowController:
             return self._fault(f'collision: gap reading {gap:.3f} mm <= limit {self._coll:g} mm; '
                                f'retracting {self.follow_params.retract_distance_mm:g} mm', True)
         self._invalid_ticks = self._miss_ticks = 0
+        self._invalid_rate -= self._c_rate * self._invalid_rate
         if gstamp == self._used_gstamp and self._acc_gap == self._acc_gap:
             # no new sample since the last tick: the law never runs twice on one reading; the
             # encoder increment predicts the gap (notes §4, the Kalman predict step)
@@ -787,7 +792,15 @@ class FollowController:
     def _invalid(self, gap: float, status: int) -> float:
         """Handle an unusable reading: count, hold the command, fault after the allowed time."""
         finite = gap - gap == 0.0
+        # the share of invalid samples (low-passed): interleaved valid ones do not hide them
+        rate = self._invalid_rate + self._c_rate * (1.0 - self._invalid_rate)
+        self._invalid_rate = rate
+        if rate > self._rate_max:
+            return self._fault(f'gap readings invalid too often: {rate:.0%} of the samples '
+                               f'over the last {self.follow_params.invalid_rate_tau_s:g} s '
+                               f'(limit {self._rate_max:.0%})')
         if status == GAP_STATUS_OUT_OF_RANGE or (status == 0 and finite and gap > self._coll):
+            self.counts['out_of_range'] += 1
             self._miss_ticks += 1
             if self._miss_ticks >= self._miss_max:
                 return self._fault(
@@ -799,12 +812,12 @@ class FollowController:
                                f'{self.follow_params.retract_distance_mm:g} mm', True)
         else:
             self._invalid_ticks += 1
+            self.counts['invalid'] += 1
             if self._invalid_ticks >= self._invalid_max:
                 what = 'sensor fault status' if status == GAP_STATUS_FAULT else (
                     f'status {status}' if status else 'not finite')
                 return self._fault(f'gap reading invalid ({what}) for '
                                    f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
-        self.counts['invalid'] += 1
         if self._u < 0.0:
             self._u = 0.0  # motion toward the sheet stops at once on invalid data
         if self._state == _PREINTERP:

@@ -53,6 +53,11 @@ class FollowParams(Section):
                                    gt=0.0, le=0.1)
     invalid_timeout_s: float = param(0.005, 's', 'invalid reading (not miss-panel) tolerated '
                                      'this long', gt=0.0, le=0.1)
+    invalid_rate_max: float = param(0.25, '1', 'largest share of invalid samples (low-passed '
+                                    'over invalid_rate_tau_s) before FAULT, even when valid '
+                                    'ones interleave', gt=0.0, le=1.0)
+    invalid_rate_tau_s: float = param(0.05, 's', 'time constant of the invalid-sample share',
+                                      gt=0.0, le=10.0)
     miss_panel_s: float = param(0.005, 's', 'out-of-range reading this long: miss-panel FAULT',
                                 gt=0.0, le=0.1)
     collision_gap_mm: float = param(0.2, 'mm', 'a reading at or below this is a collision',

@@ -71,6 +71,7 @@ from ..control.params import (
 from ..control.schema import Entry, entries, field_problems, param
 from . import qos
 from .cdr import CdrPacker
+from .realtime import apply_realtime
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,13 @@ class NodeParams:
                                      gt=0.0, le=10.0, runtime=False)
     diagnostics_period_s: float = param(1.0, 's', 'period of /diagnostics', ge=0.05, le=60.0,
                                         runtime=False)
+    thread_priority: int = param(50, '1', 'SCHED_FIFO priority of the loop thread; 0 = the '
+                                 'normal scheduler (a refusal is a warning, node/realtime.py)',
+                                 ge=0, le=99, runtime=False)
+    cpu: int = param(-1, '1', 'pin the process to this CPU; -1 = any', ge=-1, le=1023,
+                     runtime=False)
+    lock_memory: bool = param(True, '', 'mlockall: no page faults on the tick path',
+                              runtime=False)
 
 
 _ROS_TYPE = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
@@ -168,6 +176,7 @@ class FollowNode(Node):
         self._stamp_past_ns = 10 * self._stamp_future_ns
         self.stamp_rejects = 0
         self.tick_exceptions = 0
+        self.realtime = 'none'  # what apply_realtime could set (main), for /diagnostics
         self.gap_seq = 0
         self.gap_mm = math.nan
         self.gap_valid = False
@@ -476,7 +485,8 @@ class FollowNode(Node):
             status.message = state
         values = {k: f'{v:.6g}' for k, v in stats.items()}
         values.update({'state': state, 'fault_reason': ctl.fault_reason or '',
-                       'ticks': str(self.tick_index), 'loop': self.loop_mode})
+                       'ticks': str(self.tick_index), 'loop': self.loop_mode,
+                       'realtime': self.realtime})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
@@ -571,6 +581,12 @@ def main(argv: list[str] | None = None) -> int:
 
         executor = EventsExecutor(context=node.context)
         executor.add_node(node)
+        np_ = node.node_params
+        applied, warnings = apply_realtime(np_.thread_priority,
+                                           [np_.cpu] if np_.cpu >= 0 else [], np_.lock_memory)
+        for text in warnings:
+            node.get_logger().warning(text)
+        node.realtime = ', '.join(applied) or 'none'
         node.get_logger().info(f'following loop started ({node.loop_mode}, '
                                f'{1.0 / node.h_s:.0f} Hz)')
         # Everything alive now (node, controller, generated code) leaves the collector's

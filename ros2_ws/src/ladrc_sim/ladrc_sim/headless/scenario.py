@@ -327,6 +327,8 @@ def load_scenario(path: str | Path) -> Scenario:
         text = p.read_text(encoding='utf-8')
     except OSError as e:
         raise ScenarioError(f'{label}: cannot read the file: {e.strerror or e}') from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f'{label}: not a text (UTF-8) file') from None
     try:
         data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as e:
@@ -337,6 +339,8 @@ def load_scenario(path: str | Path) -> Scenario:
         if ctx and ctx_mark is not None:
             problem += f' ({ctx} at line {ctx_mark.line + 1})'
         raise ScenarioError(' '.join(f'{label}: {line}: bad YAML: {problem}'.split())) from None
+    except RecursionError:
+        raise ScenarioError(f'{label}: YAML nested too deeply') from None
     if data is None:
         raise ScenarioError(f'{label}: (top level): the file is empty')
     return scenario_from_dict(data, label)

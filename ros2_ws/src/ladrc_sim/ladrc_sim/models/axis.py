@@ -62,9 +62,13 @@ class ParamError(ValueError):
 
 def spec(default: Any, *, gt: float | None = None, ge: float | None = None,
          le: float | None = None, lt: float | None = None,
-         choices: tuple[str, ...] | None = None, why: str = '') -> Any:
-    """Declare a dataclass field with a default and its allowed range."""
-    meta = {'gt': gt, 'ge': ge, 'le': le, 'lt': lt, 'choices': choices, 'why': why}
+         choices: tuple[str, ...] | None = None, why: str = '', inf_ok: bool = False) -> Any:
+    """Declare a dataclass field with a default and its allowed range.
+
+    Numbers must be finite; with ``inf_ok`` +inf is allowed and means "never" (an end time).
+    """
+    meta = {'gt': gt, 'ge': ge, 'le': le, 'lt': lt, 'choices': choices, 'why': why,
+            'inf_ok': inf_ok}
     return field(default=default, metadata=meta)
 
 
@@ -84,8 +88,8 @@ def check_fields(obj: Any) -> None:
                 raise ParamError(f.name, f'{value!r} is not one of {", ".join(choices)}{why}')
             continue
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if math.isnan(value):
-                raise ParamError(f.name, 'is NaN, a number is required')
+            if math.isnan(value) or (math.isinf(value) and not (meta.get('inf_ok') and value > 0)):
+                raise ParamError(f.name, f'is {value}, a finite number is required')
             for key, ok, word in (('gt', lambda v, b: v > b, '>'),
                                   ('ge', lambda v, b: v >= b, '>='),
                                   ('lt', lambda v, b: v < b, '<'),

@@ -33,7 +33,7 @@ class Glitch:
 
     kind: str = spec('jump', choices=('jump', 'stuck'))
     t_s: float = spec(0.0, ge=0.0)
-    duration_s: float = spec(math.inf, gt=0.0)
+    duration_s: float = spec(math.inf, gt=0.0, inf_ok=True)
     size_mm: float = spec(0.0)
 
     def __post_init__(self) -> None:

@@ -86,7 +86,7 @@ class Sine:
     freq_hz: float = spec(1.0, gt=0.0)
     phase_deg: float = spec(0.0)
     t_start_s: float = spec(0.0, ge=0.0)
-    t_end_s: float = spec(INF, gt=0.0)
+    t_end_s: float = spec(INF, gt=0.0, inf_ok=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -129,7 +129,7 @@ class Square:
     amp_mm: float = spec(0.5, ge=0.0)
     freq_hz: float = spec(1.0, gt=0.0)
     t_start_s: float = spec(0.0, ge=0.0)
-    t_end_s: float = spec(INF, gt=0.0)
+    t_end_s: float = spec(INF, gt=0.0, inf_ok=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -147,7 +147,7 @@ class Triangle:
     amp_mm: float = spec(0.5, ge=0.0)
     freq_hz: float = spec(1.0, gt=0.0)
     t_start_s: float = spec(0.0, ge=0.0)
-    t_end_s: float = spec(INF, gt=0.0)
+    t_end_s: float = spec(INF, gt=0.0, inf_ok=True)
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -41,6 +41,7 @@ from std_msgs.msg import String
 
 from ..headless.runner import run
 from ..headless.scenario import ScenarioError, list_scenarios, load_scenario
+from .realtime import apply_realtime
 
 # The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
 # has a seq counter, so loss is measured); a keep-last-1 best-effort command input so the drive
@@ -132,7 +133,12 @@ class DriveBridge:
             # Late (or not real time): still take the command that has arrived meanwhile.
             self.executor.spin_once(timeout_sec=0.0)
             if self.realtime and now - deadline > self.period_ns:
+                # Late by more than a cycle (this process was descheduled): shift the schedule
+                # instead of bursting through the missed cycles, as a drive synchronised to
+                # its bus would. A burst would count cycles in which no command could arrive
+                # and trip the watchdog on a stall of the simulator itself.
                 self.late_ticks += 1
+                self.t_start_ns += now - deadline
         if not self.running:
             raise StopSimulation()
         if self._last_tick_ns:
@@ -197,6 +203,10 @@ class SimNode(Node):
         self.declare_parameter('wait_for_recorder_s', 0.0)
         self.declare_parameter('start_delay_s', 0.0)
         self.declare_parameter('frame_id', 'z_axis')
+        # real-time settings of the loop, as the follow node's (node/realtime.py)
+        self.declare_parameter('thread_priority', 50)
+        self.declare_parameter('cpu', -1)
+        self.declare_parameter('lock_memory', True)
         self.scenario = load_scenario(self.get_parameter('scenario').value)
         self.h_s = 0.0005
         self.watchdog_timeout_s = float(self.get_parameter('watchdog_timeout_s').value)
@@ -343,6 +353,12 @@ def main(argv: list[str] | None = None) -> int:
 
         executor = EventsExecutor(context=node.context)
         executor.add_node(node)
+        cpu = int(node.get_parameter('cpu').value)
+        _, warnings = apply_realtime(int(node.get_parameter('thread_priority').value),
+                                     [cpu] if cpu >= 0 else [],
+                                     bool(node.get_parameter('lock_memory').value))
+        for text in warnings:
+            node.get_logger().warning(text)
         bridge = DriveBridge(node, executor, bool(node.get_parameter('realtime').value))
         node.attach(bridge)
 
