@@ -577,7 +577,9 @@ class FollowController:
             if drive_bad:
                 self._retracting = False
                 return self._out_zero()
-            v = self._retract.step()
+            # a retract only moves up: the planner's rounding residue of its last tick
+            # (~1e-13 mm/s either way) must not become a command toward the sheet
+            v = max(self._retract.step(), 0.0)
             if self._retract.is_finished():
                 self._retracting = False
             self._src = 0
@@ -644,6 +646,10 @@ class FollowController:
         if not (t - gstamp <= s and t - estamp <= s):
             return self._fault(f'stale input: gap age {(t - gstamp) * 1e3:.3g} ms, encoder age '
                                f'{(t - estamp) * 1e3:.3g} ms (limit {s * 1e3:.3g} ms)')
+        if not (gstamp <= t + self._h and estamp <= t + self._h):
+            # a sample from the future: a clock the controller cannot trust
+            return self._fault(f'input stamped in the future: gap {(gstamp - t) * 1e3:.3g} ms, '
+                               f'encoder {(estamp - t) * 1e3:.3g} ms ahead of the tick')
         if not enc - enc == 0.0:
             return self._fault(f'encoder position not finite ({enc!r})')
         if status == GAP_STATUS_COLLISION:
@@ -845,6 +851,8 @@ class FollowController:
             why = 'the drive is not enabled'
         elif not (t - gstamp <= s and t - estamp <= s):
             why = 'inputs are stale'
+        elif not (gstamp <= t + self._h and estamp <= t + self._h):
+            why = 'inputs are stamped in the future'
         elif not enc - enc == 0.0:
             why = 'the encoder position is not finite'
         elif status == GAP_STATUS_COLLISION or (

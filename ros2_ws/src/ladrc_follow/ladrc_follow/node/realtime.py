@@ -1,6 +1,7 @@
 """Real-time settings of a 2 kHz loop process, as ``ros2_control_node`` offers them.
 
-``thread_priority`` (SCHED_FIFO priority of the process's threads, 0 = the normal scheduler),
+``thread_priority`` (SCHED_FIFO priority of the loop thread, its middleware threads one above;
+0 = the normal scheduler),
 ``cpu_affinity`` (CPUs the process may run on; empty = all) and ``lock_memory`` (``mlockall``:
 no page fault on the tick path). Each setting that the system refuses (no CAP_SYS_NICE, an
 RLIMIT_RTPRIO of 0, a missing CPU) is reported as a warning and the loop runs without it: a
@@ -16,8 +17,17 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+import threading
 
 MCL_CURRENT, MCL_FUTURE = 1, 2
+
+
+def _each_thread(fn) -> None:
+    for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
+        try:
+            fn(tid)
+        except ProcessLookupError:
+            pass  # the thread ended meanwhile
 
 
 def apply_realtime(thread_priority: int, cpu_affinity: list[int] | tuple[int, ...],
@@ -25,24 +35,27 @@ def apply_realtime(thread_priority: int, cpu_affinity: list[int] | tuple[int, ..
     """Apply the settings to the calling thread/process; return ``(applied, warnings)``."""
     applied: list[str] = []
     warnings: list[str] = []
+    # Both settings go to every thread of the process: the loop thread and the middleware's
+    # receive and send threads, which carry the samples and commands (threads created later
+    # inherit them from their creator).
     if cpu_affinity:
         try:
-            os.sched_setaffinity(0, set(int(c) for c in cpu_affinity))
-            applied.append(f'CPU affinity {sorted(set(cpu_affinity))}')
+            cpus = set(int(c) for c in cpu_affinity)
+            _each_thread(lambda tid: os.sched_setaffinity(tid, cpus))
+            applied.append(f'CPU affinity {sorted(cpus)}')
         except (OSError, ValueError) as exc:
             warnings.append(f'CPU affinity {list(cpu_affinity)} not applied: {exc}')
     if thread_priority > 0:
         try:
-            # every thread of the process: the loop thread and the middleware's receive and
-            # send threads, which carry the samples and commands (threads created later by a
-            # FIFO thread inherit the policy)
-            param = os.sched_param(int(thread_priority))
-            for tid in sorted(int(t) for t in os.listdir('/proc/self/task')):
-                try:
-                    os.sched_setscheduler(tid, os.SCHED_FIFO, param)
-                except ProcessLookupError:
-                    pass  # the thread ended meanwhile
-            applied.append(f'SCHED_FIFO priority {thread_priority}')
+            # The loop thread (the caller) at ``thread_priority``; the middleware's threads one
+            # above, so that delivering a sample or a command (short bursts that then block)
+            # is never held up by the loop, even when both share a CPU.
+            loop_tid = threading.get_native_id()
+            prio = int(thread_priority)
+            io = os.sched_param(min(prio + 1, os.sched_get_priority_max(os.SCHED_FIFO)))
+            _each_thread(lambda tid: os.sched_setscheduler(
+                tid, os.SCHED_FIFO, os.sched_param(prio) if tid == loop_tid else io))
+            applied.append(f'SCHED_FIFO priority {prio} (middleware threads {io.sched_priority})')
         except (OSError, ValueError) as exc:
             warnings.append(f'SCHED_FIFO priority {thread_priority} not permitted ({exc}); '
                             'the loop runs at normal priority and may be late under load '

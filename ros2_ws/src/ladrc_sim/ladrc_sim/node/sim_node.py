@@ -153,12 +153,15 @@ class DriveBridge:
         if self.last_cmd_ns:
             self.ticks_since_cmd += 1
             if self.ticks_since_cmd > self.watchdog_ticks:
-                if not self.fault_reason:
-                    self.watchdog_trips += 1
+                tripped = not self.fault_reason
                 self.fault_reason = (f'no velocity command for {self.ticks_since_cmd} cycles '
                                      f'(watchdog {self.watchdog_ticks} cycles = '
                                      f'{self.watchdog_ticks * self.period_ns * 1e-6:g} ms): '
                                      'axis stopped')
+                if tripped:
+                    self.watchdog_trips += 1
+                    node.get_logger().warning(f'watchdog: {self.fault_reason} (late ticks so '
+                                              f'far: {self.late_ticks})')
                 self._resumed_ns = 0
             elif self.fault_reason:
                 if not self._resumed_ns:

@@ -1,0 +1,448 @@
+"""The fault-injection matrix of the safety issue: each row injects one fault, prints its figure.
+
+    scripts/in-env python bench/fault_matrix.py [--load-s 30] [--skip-live]
+
+Headless rows run the FollowController against the simulator models (the runner the sim node
+drives), deterministic per seed: a frozen sensor with fresh stamps, sensor stops of 5/50/500 ms,
+a nozzle sliding off an edge (coverage 1 → 0.5, 0.06, 0 over 1 s and over 50 ms), the notes'
+half-off edge scenarios, corrupted inputs (NaN / ±inf / out-of-range gap marked valid, NaN / inf
+encoder), and a parameter fuzz over every declared parameter (invalid values must be rejected,
+valid ones must never crash, also through ``set_params`` of a running controller).
+
+Live rows start real processes (sim node, follow node, recorder) on an isolated DDS domain: the
+controller SIGKILLed while following (time until the simulated axis is at rest), the driver
+killed and restarted (the controller holds and resumes only on command), the recorder SIGKILLed
+(how much of the bag is lost), a second publisher injecting NaN readings marked valid, a live
+parameter fuzz over SetParameters, and ``--load-s`` seconds of following with two busy loops at
+normal priority on both cores (spurious faults).
+
+A contact is a true gap <= 0 (sim truth). Last line: one JSON object with at least
+``contacts``, ``node_crashes``, ``nonfinite_commands``, ``invalid_params_accepted``,
+``invalid_params_tried``, ``spurious_faults_under_load``, ``kill_stop_ms``,
+``recorder_kill_loss_s``, and every row.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import typing
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / 'tests' / 'support'))
+os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+from ladrc_follow.control.follow import FollowController  # noqa: E402
+from ladrc_follow.control.params import (  # noqa: E402
+    ControllerParams,
+    ParameterError,
+    params_from_dict,
+)
+from ladrc_follow.control.schema import entries  # noqa: E402
+from ladrc_sim.headless import runner  # noqa: E402
+from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict  # noqa: E402
+
+FAULT = 5
+SCENARIOS = ROOT / 'tests' / 'ros' / 'scenarios'
+ROWS: list[dict] = []
+
+
+def row(name: str, **figures) -> dict:
+    """Record and print one row of the matrix."""
+    r = {'row': name, **figures}
+    ROWS.append(r)
+    text = ', '.join(f'{k} {v:.4g}' if isinstance(v, float) else f'{k} {v}'
+                     for k, v in figures.items())
+    print(f'{name:44s} {text}', flush=True)
+    return r
+
+
+# ---------------------------------------------------------------------------- headless rows
+class Corrupt:
+    """Wrap a FollowController; ``corrupt(t, tick) -> tick`` rewrites its inputs."""
+
+    def __init__(self, ctrl: FollowController, corrupt) -> None:
+        self.c, self.corrupt = ctrl, corrupt
+
+    def step(self, tick) -> float:
+        """Step the controller on the corrupted inputs."""
+        return self.c.step(self.corrupt(tick.t_s, tick))
+
+    def command(self, name, **kwargs):
+        """Pass a follow command on."""
+        return self.c.command(name, **kwargs)
+
+    def internals(self):
+        """Return the controller's internals."""
+        return self.c.internals()
+
+
+def headless(name: str, timeline=(), sheet=None, duration_s=3.5, corrupt=None,
+             scenario=None) -> dict:
+    """Run one headless case; return its row (contact, min gap, fault, downward after fault)."""
+    if scenario is None:
+        d = dict(name=name, duration_s=duration_s, seed=3, initial_gap_mm=3.0,
+                 sensor={'noise_std_mm': 0.005, 'quant_mm': 0.001},
+                 timeline=[{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0},
+                           *timeline])
+        if sheet:
+            d['sheet'] = sheet
+        sc = scenario_from_dict(d)
+    else:
+        sc = load_scenario(scenario)
+    c = FollowController(ControllerParams())
+    ctrl = c if corrupt is None else Corrupt(c, corrupt)
+    res = runner.run(sc, ctrl, record_internals=True)
+    gap = np.asarray(res.true_gap_mm)
+    u = np.asarray(res.command_mm_s)
+    state = np.asarray(res.internals['state'])
+    faulted = bool(np.any(state == FAULT))
+    k = int(np.argmax(state == FAULT)) if faulted else len(u)
+    return row(name, contact=bool(gap.min() <= 0.0), min_true_gap_mm=float(gap.min()),
+               fault=c.fault_reason[:70] if faulted else '-',
+               downward_after_fault=bool(np.any(u[k:] < 0.0)),
+               nonfinite_commands=int(np.sum(~np.isfinite(u))))
+
+
+def headless_rows() -> None:
+    print('-- headless: sensor, edges, corrupted inputs')
+    sine = {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 1.0}]}
+    headless('frozen reading, fresh stamps, moving sheet',
+             [{'t_s': 1.5, 'do': 'sensor_freeze', 'duration_s': 1.0}], sheet=sine)
+    for ms in (5, 50, 500):
+        headless(f'sensor stream stops {ms} ms',
+                 [{'t_s': 1.5, 'do': 'sensor_dropout', 'duration_s': ms * 1e-3}], sheet=sine)
+    for cov in (0.5, 0.06, 0.0):
+        for ramp in (1.0, 0.05):
+            headless(f'edge: coverage 1 -> {cov:g} over {ramp * 1e3:g} ms',
+                     [{'t_s': 1.5, 'do': 'coverage', 'value': cov, 'ramp_s': ramp}])
+    for sc in ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1'):
+        headless(f'seed edge scenario {sc}', scenario=sc)
+
+    def window(fn):
+        return lambda t, tick: fn(tick) if 1.5 <= t < 1.52 else tick
+
+    for label, fn in (
+            ('gap NaN marked valid', lambda k: k._replace(gap_mm=math.nan)),
+            ('gap +inf marked valid', lambda k: k._replace(gap_mm=math.inf)),
+            ('gap -inf marked valid', lambda k: k._replace(gap_mm=-math.inf)),
+            ('gap 1e6 mm marked valid', lambda k: k._replace(gap_mm=1e6)),
+            ('gap -1 mm marked valid', lambda k: k._replace(gap_mm=-1.0)),
+            ('encoder NaN', lambda k: k._replace(encoder_mm=math.nan)),
+            ('encoder +inf', lambda k: k._replace(encoder_mm=math.inf)),
+            ('stamp 2 s in the future', lambda k: k._replace(gap_stamp_s=k.t_s + 2.0))):
+        headless(f'input: {label} (20 ms)', sheet=sine, corrupt=window(fn))
+
+
+def parameter_fuzz(rng: random.Random) -> tuple[int, int, int]:
+    """Invalid values must be rejected (as a reason), valid ones must never crash."""
+    print('-- headless: parameter fuzz')
+    tried = accepted = crashes = 0
+    running = FollowController(ControllerParams())
+    for e in entries(ControllerParams()):
+        spec = e.spec
+        if spec.choices:
+            bad = ['nonsense', -7, 3.5]
+        elif e.type is bool:
+            bad = ['yes', 2, None]
+        else:
+            lo, hi = spec.lower, spec.le
+            bad = [math.inf, -math.inf, math.nan, 1e300, -1e300, 10 ** 400, hi * 2 + 1,
+                   lo - 1, 'fast', None]
+            if spec.gt is not None:
+                bad.append(lo)
+        for value in bad:
+            if typing.get_origin(e.type) is tuple and not isinstance(value, (str, type(None))):
+                value = [value] * len(e.value)
+            tried += 1
+            try:
+                p = params_from_dict({e.name: value})
+                accepted += 1
+                print(f'   ACCEPTED invalid {e.name} = {value!r}')
+                running.set_params(p)
+            except (ParameterError, ValueError):
+                pass
+            except Exception as exc:  # noqa: BLE001 - that is what the row counts
+                crashes += 1
+                print(f'   CRASH {e.name} = {value!r}: {type(exc).__name__}: {exc}')
+    # valid random values: accepted or refused by a cross check, never a crash
+    numeric = [e for e in entries(ControllerParams()) if e.type in (int, float)
+               and not e.spec.choices]
+    for _ in range(300):
+        e = rng.choice(numeric)
+        lo, hi = e.spec.lower, e.spec.le
+        value = rng.uniform(lo, hi) if e.type is float else rng.randint(int(lo), int(hi))
+        try:
+            running.set_params(params_from_dict({e.name: value}))
+        except (ParameterError, ValueError):
+            pass
+        except Exception as exc:  # noqa: BLE001
+            crashes += 1
+            print(f'   CRASH valid {e.name} = {value!r}: {type(exc).__name__}: {exc}')
+    row('parameter fuzz (headless)', invalid_tried=tried, invalid_accepted=accepted,
+        valid_tried=300, crashes=crashes)
+    return tried, accepted, crashes
+
+
+# ---------------------------------------------------------------------------- live rows
+def live_rows(load_s: float) -> dict:
+    from diagnostic_msgs.msg import DiagnosticArray
+    from ladrc_msgs.msg import CapacitiveHeight, FollowStatus, SimTruth, VelocityCommand
+    from ladrc_msgs.srv import StartFollow
+    from ladrc_tools.bags.bag import BagError, open_bag
+    from ladrc_tools.bringup.bringup import node_specs, ros_arguments
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    import rclpy
+    from rosnodes import NodeProcesses, Probe
+
+    out: dict = {'node_crashes': 0}
+    domains = iter(random.sample(range(1, 102), 6))
+
+    def fresh(name: str):
+        """Return the processes and probe of one row, on a DDS domain of its own.
+
+        A SIGKILLed node of the previous row leaves middleware state behind that must not
+        meet the next row's nodes.
+        """
+        os.environ['ROS_DOMAIN_ID'] = str(next(domains))
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx)
+        return NodeProcesses(), Probe(ctx, name), ctx
+
+    def close(nodes, probe, ctx) -> None:
+        probe.close()
+        nodes.close()
+        rclpy.try_shutdown(context=ctx)
+
+    scenario = str(SCENARIOS / 'follow_sine.yaml')
+
+    def start_axis(nodes: NodeProcesses, probe: Probe, with_recorder: Path | None = None):
+        if with_recorder is not None:
+            nodes.start('recorder', 'ladrc_tools', 'recorder', '-p', f'output:={with_recorder}')
+        # the configuration of bring-up (product timeouts, real-time settings, CPU pinning)
+        for spec in node_specs(scenario):
+            if spec.executable in ('follow_node', 'sim_node'):
+                extra = ['-p', 'wait_for_controller_s:=0.0'] if spec.executable == 'sim_node' \
+                    else []
+                nodes.start(spec.executable.split('_')[0], spec.package, spec.executable,
+                            *ros_arguments(spec)[1:], *extra)
+        status = probe.record(FollowStatus, 'follow/status', keep=lambda m: (
+            m.t_s, m.state, m.fault_reason, m.velocity_mm_s, m.gap_seq))
+        truth = probe.record(SimTruth, 'sim/truth', keep=lambda m: (
+            m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.true_gap_mm, m.nozzle_mm))
+        cmds = probe.record(VelocityCommand, 'axis/velocity_command', keep=lambda m: (
+            m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.velocity_mm_s, m.enable))
+        if not probe.spin_until(lambda: len(status) > 200 and status[-1][4] > 0, 30.0):
+            raise RuntimeError('no follow/status: ' + nodes.log('follow')[-1500:])
+        res = probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0))
+        assert res.accepted, res.message
+        if not probe.spin_until(lambda: status[-1][1] == 4, 20.0):
+            raise RuntimeError(f'not following: {status[-1]}')
+        return status, truth, cmds
+
+    def crashed(nodes: NodeProcesses, *names: str) -> int:
+        n = 0
+        for name in names:
+            rc = nodes.procs[name].poll()
+            if rc is not None and rc != 0:
+                n += 1
+                print(f'   {name} exited with {rc}: {nodes.log(name)[-600:]}')
+        return n
+
+    def contacts_of(truth) -> int:
+        return int(any(g <= 0.0 for _, g, _ in truth))
+
+    # L1: controller SIGKILL while following: the drive's watchdog stops the axis
+    nodes, probe, ctx = fresh('fault_probe_1')
+    try:
+        status, truth, cmds = start_axis(nodes, probe)
+        # kill while the axis moves: the sheet's 1 Hz sine runs from 4 s of the scenario
+        probe.spin_until(lambda: abs(cmds[-1][1]) > 1.5 and status[-1][0] > 5.0, 20.0)
+        t_kill = time.time()
+        nodes.kill('follow')
+        probe.spin_for(1.0)
+        tr = np.asarray(truth[:], dtype=float)
+        dt = np.maximum(np.diff(tr[:, 0]), 1e-6)
+        v = np.abs(np.diff(tr[:, 2])) / dt     # nozzle speed from the sim's truth
+        after = tr[1:, 0] > t_kill
+        v_kill = float(v[np.argmax(after)])
+        moving = np.flatnonzero(after & (v > 0.1))
+        rest_t = tr[moving[-1] + 2, 0] if moving.size else t_kill
+        out['kill_stop_ms'] = float((rest_t - t_kill) * 1e3)
+        row('controller SIGKILL while following', kill_stop_ms=out['kill_stop_ms'],
+            speed_at_kill_mm_s=v_kill, contact=bool(contacts_of(truth)))
+        out['node_crashes'] += crashed(nodes, 'sim')
+    finally:
+        close(nodes, probe, ctx)
+
+    # L2: driver killed and restarted: the controller holds, resumes only on command
+    nodes, probe, ctx = fresh('fault_probe_2')
+    try:
+        status, truth, cmds = start_axis(nodes, probe)
+        probe.spin_for(0.5)
+        nodes.kill('sim')
+        probe.spin_for(0.5)
+        state_after_kill = status[-1][1]
+        n_cmd = len(cmds)
+        sim_spec = next(s for s in node_specs(scenario) if s.executable == 'sim_node')
+        nodes.start('sim2', 'ladrc_sim', 'sim_node', *ros_arguments(sim_spec)[1:],
+                    '-p', 'wait_for_controller_s:=0.0')
+        probe.spin_for(3.0)
+        later = cmds[n_cmd:]
+        held = state_after_kill == FAULT and status[-1][1] == FAULT and all(
+            v == 0.0 for _, v, _ in later)
+        row('driver killed and restarted', state_after=int(status[-1][1]),
+            commands_after_restart=len(later), held_until_commanded=held)
+        out['driver_restart_held'] = held
+        out['node_crashes'] += crashed(nodes, 'follow', 'sim2')
+    finally:
+        close(nodes, probe, ctx)
+
+    # L3: recorder SIGKILL: how much of the bag is lost
+    tmp = Path(tempfile.mkdtemp(prefix='fault-matrix-'))
+    nodes, probe, ctx = fresh('fault_probe_3')
+    try:
+        bag = tmp / 'bag'
+        status, truth, cmds = start_axis(nodes, probe, with_recorder=bag)
+        probe.spin_for(3.0)
+        t_kill = time.time()
+        nodes.kill('recorder')
+        probe.spin_for(0.5)
+        try:
+            b = open_bag(bag)
+            last = max(ts for ts, _ in b.raw('follow/status')) * 1e-9
+            loss = t_kill - last
+        except (BagError, ValueError) as exc:
+            print(f'   bag unreadable after the kill: {exc}')
+            loss = math.inf
+        out['recorder_kill_loss_s'] = float(loss)
+        row('recorder SIGKILL', loss_s=float(loss))
+        out['node_crashes'] += crashed(nodes, 'follow', 'sim')
+    finally:
+        close(nodes, probe, ctx)
+
+    # L4: a second publisher injects NaN readings marked valid
+    nodes, probe, ctx = fresh('fault_probe_4')
+    try:
+        status, truth, cmds = start_axis(nodes, probe)
+        pub = probe.node.create_publisher(CapacitiveHeight, 'axis/capacitive_height', 10)
+        n_cmd = len(cmds)
+        msg = CapacitiveHeight(gap_mm=math.nan, valid=True, status=0, seq=10 ** 9)
+        end = time.monotonic() + 0.05
+        while time.monotonic() < end:
+            msg.header.stamp = probe.node.get_clock().now().to_msg()
+            pub.publish(msg)
+            probe.executor.spin_once(timeout_sec=0.0005)
+        probe.spin_for(0.5)
+        after = cmds[n_cmd:]
+        nonfinite = sum(1 for _, v, _ in after if not math.isfinite(v))
+        faulted = any(s[1] == FAULT for s in status[-2000:])
+        row('second publisher: NaN marked valid (50 ms)', fault=faulted,
+            nonfinite_commands=nonfinite, contact=bool(contacts_of(truth)))
+        out['nonfinite_live'] = nonfinite
+        out['node_crashes'] += crashed(nodes, 'follow', 'sim')
+    finally:
+        close(nodes, probe, ctx)
+
+    # L5: live parameter fuzz over SetParameters
+    nodes, probe, ctx = fresh('fault_probe_5')
+    try:
+        status, truth, cmds = start_axis(nodes, probe)
+        tried = accepted = 0
+        for e in entries(ControllerParams()):
+            if e.type is not float:
+                continue
+            for value in (math.inf, math.nan, 1e300, -1e300, e.spec.le * 2 + 1):
+                p = Parameter(name=e.name, value=ParameterValue(
+                    type=ParameterType.PARAMETER_DOUBLE, double_value=value))
+                res = probe.call(SetParameters, '/ladrc_follow/set_parameters',
+                                 SetParameters.Request(parameters=[p])).results[0]
+                tried += 1
+                accepted += int(res.successful)
+        alive = nodes.procs['follow'].poll() is None
+        row('parameter fuzz (live SetParameters)', invalid_tried=tried,
+            invalid_accepted=accepted, node_alive=alive,
+            state=int(status[-1][1]))
+        out['live_params'] = (tried, accepted)
+        out['node_crashes'] += crashed(nodes, 'follow', 'sim') + (0 if alive else 1)
+    finally:
+        close(nodes, probe, ctx)
+
+    # L6: following under load: two busy loops at normal priority on both cores
+    nodes, probe, ctx = fresh('fault_probe_6')
+    busy = []
+    try:
+        status, truth, cmds = start_axis(nodes, probe)
+        n0 = len(status)
+        busy = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+                for _ in range(2)]
+        probe.spin_for(load_s)
+        seen = status[n0:]
+        faults = sum(1 for i in range(1, len(seen))
+                     if seen[i][1] == FAULT and seen[i - 1][1] != FAULT)
+        reasons = sorted({s[2][:60] for s in seen if s[1] == FAULT})
+        diag = {}
+
+        def on_diag(msg):
+            for st in msg.status:
+                if st.name.startswith('ladrc_follow'):
+                    diag.update({kv.key: kv.value for kv in st.values})
+
+        probe.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        probe.spin_for(1.2)
+        row(f'following under load ({load_s:g} s, 2 busy loops)', spurious_faults=faults,
+            reasons='; '.join(reasons) or '-', contact=bool(contacts_of(truth)),
+            realtime=diag.get('realtime', '?'))
+        out['spurious_faults_under_load'] = faults
+        out['node_crashes'] += crashed(nodes, 'follow', 'sim')
+    finally:
+        for b in busy:
+            b.send_signal(signal.SIGKILL)
+            b.wait()
+        close(nodes, probe, ctx)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--load-s', type=float, default=30.0, help='seconds of the load row')
+    ap.add_argument('--skip-live', action='store_true', help='headless rows only')
+    a = ap.parse_args()
+    rng = random.Random(7)
+    t0 = time.monotonic()
+    headless_rows()
+    tried, accepted, crashes = parameter_fuzz(rng)
+    live = {} if a.skip_live else live_rows(a.load_s)
+    live_tried, live_accepted = live.get('live_params', (0, 0))
+    summary = {
+        'contacts': sum(1 for r in ROWS if r.get('contact') is True),
+        'node_crashes': int(crashes + live.get('node_crashes', 0)),
+        'nonfinite_commands': int(sum(r.get('nonfinite_commands', 0) for r in ROWS)),
+        'invalid_params_accepted': int(accepted + live_accepted),
+        'invalid_params_tried': int(tried + live_tried),
+        'spurious_faults_under_load': live.get('spurious_faults_under_load'),
+        'kill_stop_ms': live.get('kill_stop_ms'),
+        'recorder_kill_loss_s': live.get('recorder_kill_loss_s'),
+        'downward_after_fault_rows': [r['row'] for r in ROWS if r.get('downward_after_fault')],
+        'contact_rows': [r['row'] for r in ROWS if r.get('contact') is True],
+        'wall_s': round(time.monotonic() - t0, 1),
+        'rows': ROWS,
+    }
+    print(json.dumps(summary, default=str))
+
+
+if __name__ == '__main__':
+    main()
