@@ -135,3 +135,34 @@ def test_invalid_samples_interleaved_with_valid_ones_still_fault(loop):
     loop.run(200, every_other)
     assert int(c.state) == FAULT and 'invalid too often' in c.fault_reason
     assert c.counts['invalid'] > 10
+
+
+def test_a_reading_that_jumps_wider_is_not_followed_down(loop):
+    """One sample 1 mm too wide: rejected, counted, no command toward the sheet from it."""
+    c = loop.c
+    u_before = loop.u[-1]
+
+    def spike(i, d):
+        if i == loop.i:  # the first tick of this run only
+            d['gap_mm'] += 1.0
+
+    start = len(loop.u)
+    loop.run(1, spike)
+    assert c.counts['jump'] == 1 and int(c.state) == LADRC
+    assert loop.u[start] == max(u_before, 0.0)
+    loop.run(50)
+    assert int(c.state) == LADRC and abs(loop.gap[-1] - 1.5) < 0.02
+
+
+def test_a_persistent_step_of_the_sheet_is_taken_after_confirmation():
+    """The sheet really drops 1 mm: held for jump_confirm_s, then followed down."""
+    c = FollowController(ControllerParams())
+    lp = Loop(c, gap0_mm=2.5, sheet=lambda t: -1.0 if t >= 4.0 else 0.0)
+    c.command('start_follow', target_gap_mm=1.5)
+    lp.run_until(lambda: int(c.state) == LADRC, 6000)
+    lp.run_until(lambda: lp.i * 0.0005 >= 4.0, 8000)
+    k = len(lp.u)
+    lp.run(4000)
+    assert c.counts['jump'] >= 1 and int(c.state) == LADRC
+    assert all(u >= 0.0 for u in lp.u[k:k + 19])      # held 10 ms (20 ticks)
+    assert abs(lp.gap[-1] - 1.5) < 0.02               # then followed to the new level

@@ -195,9 +195,10 @@ class FollowController:
         self._acc_enc = math.nan
         self._same_n = 0
         self._same_enc0 = math.nan
+        self._jump_n = 0
         self._invalid_rate = 0.0   # low-passed share of invalid samples
-        self.counts = {'predicted': 0, 'frozen': 0, 'invalid': 0, 'out_of_range': 0,
-                       'nonfinite': 0}
+        self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
+                       'out_of_range': 0, 'nonfinite': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
     # ------------------------------------------------------------------ parameters
@@ -233,6 +234,8 @@ class FollowController:
         self._edge = f.edge_drop_mm
         self._c_rate = h / (f.invalid_rate_tau_s + h)  # backward-Euler low-pass, as pid.py
         self._rate_max = f.invalid_rate_max
+        self._jump_mm = f.jump_mm
+        self._jump_confirm = _ticks(f.jump_confirm_s, h)
         self._frozen_n = f.frozen_ticks
         self._frozen_mm = f.frozen_travel_mm
         self._c_edge = h / (f.edge_ref_tau_s + h)  # backward-Euler low-pass, as pid.py
@@ -683,6 +686,14 @@ class FollowController:
                                        f'{moved:+.3f} mm')
             else:
                 self._same_n, self._same_enc0 = 0, enc
+            if gap - (self._acc_gap + (enc - self._acc_enc)) > self._jump_mm:
+                # the reading widened by more than a sheet can fall away in one sample: do not
+                # follow it down; a level that persists for jump_confirm_s is taken as real
+                self.counts['jump'] += 1
+                self._jump_n += 1
+                if self._jump_n < self._jump_confirm:
+                    return self._hold_up_only()
+            self._jump_n = 0
             self._acc_gap, self._acc_enc = gap, enc
         if self._gradients and self._gradients[0][0] <= self._tick:
             _, gt, gv, ga = self._gradients.pop(0)
@@ -824,16 +835,22 @@ class FollowController:
                     f'status {status}' if status else 'not finite')
                 return self._fault(f'gap reading invalid ({what}) for '
                                    f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
+        return self._hold_up_only()
+
+    def _hold_up_only(self) -> float:
+        """No usable reading this tick: hold an upward command, stop motion toward the sheet.
+
+        PID/LADRC are not stepped; in PREINTERPOLATE the plan continues only away from the
+        sheet (it needs no reading to brake, but it only closes in on valid data).
+        """
         if self._u < 0.0:
-            self._u = 0.0  # motion toward the sheet stops at once on invalid data
+            self._u = 0.0
         if self._state == _PREINTERP:
-            # the plan needs no reading to brake, but it only closes in on valid data
             self._src = 1
             v = self._interp.step()
             if v < 0.0:
                 v = self._interp.velocity_mm_s = 0.0
             return self._limit(v)
-        # hold an upward command; PID/LADRC are not stepped on invalid data
         self._flags = 0
         return self._u
 

@@ -68,6 +68,11 @@ class FollowParams(Section):
                                          'limits.v_max_mm_s)', gt=0.0, le=1000.0)
     edge_drop_mm: float = param(2.0, 'mm', 'apparent surface drop that means out of panel '
                                 'edge; 0 = off', ge=0.0, le=50.0)
+    jump_mm: float = param(0.3, 'mm', 'a new reading wider than the encoder-predicted gap by '
+                           'more than this is not followed down (a sheet does not fall away that '
+                           'fast in one sample)', gt=0.0, le=20.0)
+    jump_confirm_s: float = param(0.01, 's', 'a jumped level that persists this long is taken '
+                                  'as a real step of the sheet', gt=0.0, le=0.1)
     frozen_ticks: int = param(10, 'ticks', 'this many bit-identical readings in a row while '
                               'the encoder moved more than frozen_travel_mm: a frozen sensor',
                               ge=2, le=1000)
