@@ -99,7 +99,7 @@ def test_start_from_moving_axis():
 
 def test_bad_input():
     with pytest.raises(ValueError,
-                       match=r'interp.v_max_mm_s = 0: outside its range \(0, 1000\] mm/s'):
+                       match=r'interp.v_max_mm_s = 0: outside its range \[0.1, 1000\] mm/s'):
         Interpolator(InterpParams(0.0, 100.0))
     ip = Interpolator()
     with pytest.raises(ValueError, match='finite distance'):

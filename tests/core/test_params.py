@@ -71,7 +71,7 @@ def reasons(**sections):
 
 def test_b0_zero():
     assert has(reasons(eso=ESOParams(b0=0.0)),
-               'eso.b0 = 0: outside its range (0, 100000] order 1: 1; order 2: 1/s')
+               'eso.b0 = 0: outside its range [0.01, 100000] order 1: 1; order 2: 1/s')
 
 
 def test_w0_must_be_positive():
@@ -169,3 +169,11 @@ def test_follow_section_is_typed_and_validated_with_the_set():
     with pytest.raises(ParameterError) as err:
         params_from_dict({'follow': {'controler': 'pid'}})
     assert "unknown key 'follow.controler'" in str(err.value)
+
+
+def test_an_order2_loop_faster_than_the_sampling_is_rejected():
+    r = reasons(eso=ESOParams(order=2, gains='bandwidth', w0_rad_s=600.0, b0=125.0),
+                law=LawParams(gains='bandwidth', wc_rad_s=2000.0))
+    assert any(m.startswith('law: the order-2 loop poles reach 2000 rad/s') for m in r), r
+    assert reasons(eso=ESOParams(order=2, gains='bandwidth', w0_rad_s=600.0, b0=125.0),
+                   law=LawParams(gains='bandwidth', wc_rad_s=100.0)) == []

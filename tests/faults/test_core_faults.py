@@ -166,3 +166,75 @@ def test_a_persistent_step_of_the_sheet_is_taken_after_confirmation():
     assert c.counts['jump'] >= 1 and int(c.state) == LADRC
     assert all(u >= 0.0 for u in lp.u[k:k + 19])      # held 10 ms (20 ticks)
     assert abs(lp.gap[-1] - 1.5) < 0.02               # then followed to the new level
+
+
+def test_commands_that_could_hang_or_overflow_the_tick_are_refused(loop):
+    c = loop.c
+    for kwargs in ({'accel_mm_s2': 1e-40, 'velocity_mm_s': 10.0},
+                   {'accel_mm_s2': 1000.0, 'velocity_mm_s': 1e-9},
+                   {'delay_s': math.inf}, {'delay_s': 1e308}):
+        ok, msg = c.command('gradient_follow', target_gap_mm=2.0, **kwargs)
+        assert not ok and 'gradient_follow' in msg, kwargs
+    ok, msg = c.command('height_compensation', offset_mm=0.1, delay_s=1e308)
+    assert not ok and 'delay_s' in msg
+    loop.run(10)
+    assert int(c.state) == LADRC
+
+
+def test_a_sensor_stuck_low_in_fault_retracts_once_not_forever(loop):
+    c = loop.c
+    loop.run(2, lambda i, d: d.update(gap_stamp_s=d['t_s'] - 1.0))   # stale: FAULT
+    assert int(c.state) == FAULT
+    z0 = loop.axis.position_mm
+
+    def stuck_low(i, d):
+        d['gap_mm'] = 0.1  # valid, at the collision limit, forever
+
+    loop.run(6000, stuck_low)
+    assert 'collision while in FAULT' in c.fault_reason
+    assert len(c.fault_reason) < 300                     # reasons do not nest
+    travel = loop.axis.position_mm - z0
+    assert 1.9 < travel < 2.2                             # one retract of 2 mm, then still
+
+    def stuck_invalid(i, d):
+        d['gap_mm'], d['gap_valid'], d['gap_status'] = 0.0, False, 3  # sensor fault
+
+    c2 = FollowController(ControllerParams())
+    lp = Loop(c2, gap0_mm=1.5)
+    lp.run(2, lambda i, d: d.update(gap_stamp_s=d['t_s'] - 1.0))
+    c2.command('start_follow', target_gap_mm=1.0)
+    lp.run(3000, stuck_invalid)
+    assert 'collision' not in c2.fault_reason   # an invalid 0 is no evidence of contact
+
+
+def test_stop_follow_during_a_fast_approach_stops_moving_down_at_once():
+    c = FollowController(ControllerParams())
+    lp = Loop(c, gap0_mm=10.0)
+    c.command('start_follow', target_gap_mm=1.0)
+    lp.run_until(lambda: c.velocity_mm_s < -30.0, 4000)
+    c.command('stop_follow')
+    k = len(lp.u)
+    lp.run(40)
+    assert all(u >= 0.0 for u in lp.u[k:]) and int(c.state) == 0
+
+
+def test_jump_hold_also_covers_ticks_without_a_new_sample(loop):
+    """Sensor at 1 kHz, one reading 1 mm too wide: no tick of the hold moves down."""
+    c = loop.c
+    held = {}
+    start = loop.i
+
+    def glitch_1khz(i, d):
+        if (i - start) % 2:
+            d['gap_mm'], d['gap_stamp_s'] = held['gap'], held['stamp']
+        else:
+            if i == start + 4:
+                d['gap_mm'] += 1.0
+            held['gap'], held['stamp'] = d['gap_mm'], d['gap_stamp_s']
+
+    k = len(loop.u)
+    loop.run(12, glitch_1khz)
+    assert c.counts['jump'] == 1 and c.counts['predicted'] >= 6
+    # the glitched sample's tick and the following tick without a new sample both hold; the
+    # next (good) sample ends the hold and the law resumes (its command may be downward)
+    assert loop.u[k + 3] < 0.0 and loop.u[k + 4] == 0.0 and loop.u[k + 5] == 0.0

@@ -405,10 +405,10 @@ def test_stop_follow_goes_idle_and_zero(following_ladrc):
     c = loop.c
 
     def push(i, d):
-        d['gap_mm'] += 0.5  # make the command clearly non-zero first
+        d['gap_mm'] -= 0.5  # make the command clearly non-zero (upward) first
 
     loop.run(20, push)
-    assert abs(loop.u[-1]) > 1.0
+    assert loop.u[-1] > 1.0
     assert c.command('stop_follow')[0]
     loop.run(1)
     assert int(c.state) == 0 and math.isnan(c.target_gap_mm)

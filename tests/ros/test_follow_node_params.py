@@ -91,6 +91,8 @@ def test_parameters_from_the_schema(follow_node):
     ('/**:\n  ros__parameters:\n    law:\n      kp: -3.0\n', 'law.kp'),
     ('/**:\n  ros__parameters:\n    law:\n      kp: fast\n', 'law.kp'),
     ('/**:\n  ros__parameters:\n    law: [1, 2\n', ''),
+    ('/**:\n  ros__parameters:\n    follow:\n      colision_gap_mm: 0.5\n', 'colision_gap_mm'),
+    ('/**:\n  ros__parameters:\n    eso:\n      betas: [true, true]\n', 'eso.betas'),
 ])
 def test_a_bad_parameter_file_is_one_line_and_exit_code(tmp_path, text, expect):
     path = tmp_path / 'bad.yaml'

@@ -109,6 +109,7 @@ class Probe:
         self.executor = EventsExecutor(context=context)
         self.executor.add_node(self.node)
         self.messages: dict[str, list] = {}
+        self._clients: dict[str, object] = {}
 
     def record(self, msg_type, topic: str, qos: QoSProfile = READER,
                keep: Callable | None = None) -> RawLog:
@@ -130,8 +131,15 @@ class Probe:
         self.spin_until(lambda: False, seconds)
 
     def call(self, srv_type, name: str, request, timeout_s: float = 10.0):
-        client = self.node.create_client(srv_type, name)
-        assert self.spin_until(client.service_is_ready, timeout_s), f'{name} not available'
+        client = self._clients.get(name)
+        if client is None:
+            client = self.node.create_client(srv_type, name)
+            assert self.spin_until(client.service_is_ready, timeout_s), f'{name} not available'
+            # "ready" means the server's request reader is matched; the server may not have
+            # matched this client's response reader yet, and a response sent before that is
+            # lost (a known race of new clients): give discovery a moment, once per client
+            self.spin_for(0.3)
+            self._clients[name] = client
         future = client.call_async(request)
         assert self.spin_until(future.done, timeout_s), f'{name} did not answer'
         return future.result()

@@ -69,6 +69,11 @@ GAP_STATUS_OUT_OF_RANGE = 1
 GAP_STATUS_COLLISION = 2
 GAP_STATUS_FAULT = 3
 
+# command arguments: the longest delay of a queued command; the smallest speed / acceleration
+# of a gradient move (an absurdly slow move would hold the axis for hours)
+MAX_DELAY_S = 3600.0
+MIN_GRADIENT = (0.1, 10.0)
+
 # ladrc_msgs/FollowStatus LIMIT_* bits
 LIMIT_VELOCITY = 1
 LIMIT_ACCELERATION = 2
@@ -176,6 +181,7 @@ class FollowController:
         self._gradients: list[tuple[int, float, float, float]] = []
         self._capped = False
         self._retracting = False
+        self._retracted = False  # a retract has run since the fault latched
         self._retract: Interpolator | None = None
         self._last_gap = math.nan
         self._last_enc = math.nan
@@ -195,7 +201,7 @@ class FollowController:
         self._acc_enc = math.nan
         self._same_n = 0
         self._same_enc0 = math.nan
-        self._jump_n = 0
+        self._jump_t0 = math.nan  # time of the first jumped reading being held
         self._invalid_rate = 0.0   # low-passed share of invalid samples
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
                        'out_of_range': 0, 'nonfinite': 0}
@@ -235,7 +241,7 @@ class FollowController:
         self._c_rate = h / (f.invalid_rate_tau_s + h)  # backward-Euler low-pass, as pid.py
         self._rate_max = f.invalid_rate_max
         self._jump_mm = f.jump_mm
-        self._jump_confirm = _ticks(f.jump_confirm_s, h)
+        self._jump_confirm_s = f.jump_confirm_s
         self._frozen_n = f.frozen_ticks
         self._frozen_mm = f.frozen_travel_mm
         self._c_edge = h / (f.edge_ref_tau_s + h)  # backward-Euler low-pass, as pid.py
@@ -385,8 +391,9 @@ class FollowController:
             if not _real(off) or abs(off) > f.max_compensation_mm:
                 return False, (f'height_compensation: offset_mm must be a finite number within '
                                f'±{f.max_compensation_mm:g} mm, got {off!r}')
-            if not _real(delay) or delay < 0.0:
-                return False, f'height_compensation: delay_s must be >= 0, got {delay!r}'
+            if not _real(delay) or not 0.0 <= delay <= MAX_DELAY_S:
+                return False, (f'height_compensation: delay_s must be within 0..'
+                               f'{MAX_DELAY_S:g} s, got {delay!r}')
             if st not in (_PID, _LADRC):
                 return False, ('height_compensation: only accepted while following in PID or '
                                f'LADRC state, not {FollowState(st).name} (seed: a compensation '
@@ -407,12 +414,14 @@ class FollowController:
             if why:
                 return False, why
             lim = self.params.limits
-            for key, top in (('delay_s', math.inf), ('velocity_mm_s', lim.v_max_mm_s),
-                             ('accel_mm_s2', lim.a_max_mm_s2)):
+            for key, low, top in (('delay_s', 0.0, MAX_DELAY_S),
+                                  ('velocity_mm_s', MIN_GRADIENT[0], lim.v_max_mm_s),
+                                  ('accel_mm_s2', MIN_GRADIENT[1], lim.a_max_mm_s2)):
                 v = kwargs[key]
                 if not (isinstance(v, numbers.Real) and not isinstance(v, bool)
-                        and 0.0 <= v <= top):
-                    return False, f'gradient_follow: {key} must be within 0..{top:g}, got {v!r}'
+                        and (v == 0.0 or low <= v <= top)):
+                    return False, (f'gradient_follow: {key} must be 0 (default) or within '
+                                   f'{low:g}..{top:g}, got {v!r}')
             msg = f'gradient follow to {kwargs["target_gap_mm"]:g} mm in {kwargs["delay_s"]:g} s'
         else:  # reset_fault
             if st != _FAULT:
@@ -530,6 +539,7 @@ class FollowController:
         self._fault_reason = reason
         if self._u < 0.0:
             self._u = 0.0  # safety: motion toward the sheet stops at once, upward may ramp
+        self._retracted = retract
         if retract:
             f = self.follow_params
             lim = self.params.limits
@@ -630,13 +640,18 @@ class FollowController:
         self._drive_bad = drive_bad
         st = self._state
         if st == _IDLE:
+            if self._u < 0.0:
+                self._u = 0.0  # not following: nothing moves toward the sheet
             return self._ramp0()
         if st == _FAULT:
-            if not self._retracting and not drive_bad and (
-                    status == GAP_STATUS_COLLISION or (gap - gap == 0.0 and gap <= self._coll)):
-                # collision evidence retracts in every state, FAULT included
-                return self._fault(f'collision while in FAULT ({self._fault_reason}): gap '
-                                   f'reading {gap:.3f} mm, status {status}; retracting '
+            if not (self._retracted or drive_bad) and (
+                    status == GAP_STATUS_COLLISION
+                    or (gap - gap == 0.0 and gap <= self._coll and (valid or not status))):
+                # collision evidence retracts in every state, FAULT included: once per fault
+                # (a sensor stuck low must not walk the axis up without end)
+                first = self._fault_reason.split(';')[0]
+                return self._fault(f'collision while in FAULT ({first}): gap reading '
+                                   f'{gap:.3f} mm, status {status}; retracting '
                                    f'{self.follow_params.retract_distance_mm:g} mm', True)
             return self._fault_out(drive_bad)
         if st == _LOCKING:
@@ -671,6 +686,8 @@ class FollowController:
             # no new sample since the last tick: the law never runs twice on one reading; the
             # encoder increment predicts the gap (notes §4, the Kalman predict step)
             self.counts['predicted'] += 1
+            if self._jump_t0 == self._jump_t0:
+                return self._hold_up_only()  # still holding on a jumped reading
             gap = self._acc_gap + (enc - self._acc_enc)
         else:
             self._used_gstamp = gstamp
@@ -690,10 +707,11 @@ class FollowController:
                 # the reading widened by more than a sheet can fall away in one sample: do not
                 # follow it down; a level that persists for jump_confirm_s is taken as real
                 self.counts['jump'] += 1
-                self._jump_n += 1
-                if self._jump_n < self._jump_confirm:
+                if not self._jump_t0 == self._jump_t0:
+                    self._jump_t0 = t
+                if t - self._jump_t0 < self._jump_confirm_s:
                     return self._hold_up_only()
-            self._jump_n = 0
+            self._jump_t0 = math.nan
             self._acc_gap, self._acc_enc = gap, enc
         if self._gradients and self._gradients[0][0] <= self._tick:
             _, gt, gv, ga = self._gradients.pop(0)
@@ -845,12 +863,18 @@ class FollowController:
         """
         if self._u < 0.0:
             self._u = 0.0
-        if self._state == _PREINTERP:
+        st = self._state
+        if st == _PREINTERP:
             self._src = 1
             v = self._interp.step()
             if v < 0.0:
                 v = self._interp.velocity_mm_s = 0.0
             return self._limit(v)
+        # the law resumes from the command actually applied (ESO input, PID's previous output)
+        if st == _LADRC:
+            self._ladrc.u = self._u
+        elif st == _PID:
+            self._pid.set_pre_out(self._u)
         self._flags = 0
         return self._u
 

@@ -41,9 +41,9 @@ class InterpParams(Section):
     # so the plan, made in reading units, needs ~2x the braking margin; at 100 mm/s the
     # edge_open_10_1 approach reached the 0.2 mm collision limit (docs/quality.md).
     v_max_mm_s: float = param(60.0, 'mm/s', 'speed limit of the approach move',
-                              gt=0.0, le=1000.0, seed='notes §3.5 Interp_GoDistance')
+                              ge=0.1, le=1000.0, seed='notes §3.5 Interp_GoDistance')
     a_max_mm_s2: float = param(2000.0, 'mm/s²', 'acceleration limit of the approach move',
-                               gt=0.0, le=1e6, seed='notes §3.5 Interp_GoDistance')
+                               ge=10.0, le=1e6, seed='notes §3.5 Interp_GoDistance')
 
 
 def stop_velocity(distance_mm: float, dv_mm_s: float, h_s: float) -> float:
@@ -53,10 +53,15 @@ def stop_velocity(distance_mm: float, dv_mm_s: float, h_s: float) -> float:
     big_r = distance_mm / h_s
     # largest m with dv·m(m+1)/2 ≤ R: positive root of m² + m − 2R/dv, then fix rounding
     m = int((math.sqrt(1.0 + 8.0 * big_r / dv_mm_s) - 1.0) * 0.5)
-    while m > 0 and dv_mm_s * m * (m + 1) * 0.5 > big_r:
-        m -= 1
-    while dv_mm_s * (m + 1) * (m + 2) * 0.5 <= big_r:
-        m += 1
+    # the root is off by at most one or two in floating point: a bounded fix-up (an unbounded
+    # loop would never end once m passes 2**53, e.g. for an absurdly small deceleration)
+    for _ in range(4):
+        if m > 0 and dv_mm_s * m * (m + 1) * 0.5 > big_r:
+            m -= 1
+        elif dv_mm_s * (m + 1) * (m + 2) * 0.5 <= big_r:
+            m += 1
+        else:
+            break
     return (big_r + dv_mm_s * m * (m + 1) * 0.5) / (m + 1)
 
 

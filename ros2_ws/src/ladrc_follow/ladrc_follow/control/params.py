@@ -28,6 +28,7 @@ from pathlib import Path
 import typing
 from typing import Any, Callable
 
+import numpy as np
 import yaml
 
 from .eso import bandwidth_gains, euler_is_stable, zoh_gains
@@ -74,7 +75,7 @@ class ESOParams:
                                      gt=0.0, le=1e10, seed='notes §3.3')
     b0: float = param(1.0, 'order 1: 1; order 2: 1/s', 'input gain b0 (order 1: axis mm/s per '
                       'mm/s of command; order 2: plant gain / T1)',
-                      gt=0.0, le=1e5, seed='notes §1, §3')
+                      ge=0.01, le=1e5, seed='notes §1, §3')
     compensator: bool = param(False, '', 'feed-forward compensation of the observation error',
                               seed='paper eq. 22')
     disturbance_limit: float = param(0.0, 'mm/s or mm/s²', 'clamp of |disturbance estimate|; '
@@ -109,10 +110,10 @@ class LawParams:
 class LimitParams:
     """Output limits of every command: saturation and per-tick change a_max·h (``UpdateLADRC``)."""
 
-    v_max_mm_s: float = param(150.0, 'mm/s', 'output saturation ±v_max', gt=0.0, le=1000.0,
+    v_max_mm_s: float = param(150.0, 'mm/s', 'output saturation ±v_max', ge=0.1, le=1000.0,
                               seed='notes §3.4 UpdateLADRC')
     a_max_mm_s2: float = param(4000.0, 'mm/s²', 'acceleration limit: per-tick change a_max·h',
-                               gt=0.0, le=1e6, seed='notes §3.4 UpdateLADRC')
+                               ge=10.0, le=1e6, seed='notes §3.4 UpdateLADRC')
 
 
 # TD defaults: ``CompELDTInit`` ints TDA (22, 13, 30, 15), TDB (12, 40, 100, 0) after td.py's
@@ -422,11 +423,18 @@ def _law_problems(p: ControllerParams) -> list[str]:
     out = []
     if law.gains == 'explicit' and p.eso.order == 2 and not law.kd > 0.0:
         out.append(f'law.kd must be > 0 for the order-2 law, got {law.kd!r}')
-    kp, _ = law_gains(p)
+    kp, kd = law_gains(p)
     # nominal loop with a perfect ESO: order 1 e(k+1) = (1 − kp·h)e
     if p.eso.order == 1 and not kp * p.h_s < 1.0:
         out.append(f'law: kp·h = {kp * p.h_s:.3g} >= 1, the sampled loop would overshoot '
                    'every tick; lower law.kp')
+    if p.eso.order == 2 and kd > 0.0:
+        # order 2: the poles of s² + kd·s + kp must sit well inside the sampling rate
+        wn = float(max(abs(np.roots([1.0, kd, kp]))))
+        if not wn * p.h_s < 0.25:
+            out.append(f'law: the order-2 loop poles reach {wn:.4g} rad/s, ωh = '
+                       f'{wn * p.h_s:.3g} >= 0.25 at h = {p.h_s} s: too fast for the sampled '
+                       'loop and the axis; lower law.kp/kd (or law.wc_rad_s)')
     return out
 
 

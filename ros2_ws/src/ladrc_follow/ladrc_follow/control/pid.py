@@ -72,9 +72,9 @@ class PIDParams(Section):
                               ge=0.0, le=10.0, seed='notes §3.5 EnableFeedForward')
     suppress_level: int = param(3, '1', 'vibration suppression level while machining '
                                 '(0 = off)', ge=0, le=5, seed='notes §5.3 item 5')
-    v_max_mm_s: float = param(150.0, 'mm/s', 'output saturation', gt=0.0, le=1000.0)
+    v_max_mm_s: float = param(150.0, 'mm/s', 'output saturation', ge=0.1, le=1000.0)
     a_max_mm_s2: float = param(4000.0, 'mm/s²', 'acceleration limit of the output',
-                               gt=0.0, le=1e6)
+                               ge=10.0, le=1e6)
     followed_tol_mm: float = param(0.05, 'mm', '|gap − target| counted as in position',
                                    gt=0.0, le=5.0, seed='notes §3.5 HasFollowed')
     followed_hold_s: float = param(0.05, 's', 'in position this long → followed',

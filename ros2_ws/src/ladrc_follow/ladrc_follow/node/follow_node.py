@@ -81,11 +81,11 @@ class NodeParams:
     loop: str = param('deadline', '', "tick source: 'deadline' (own deadline loop on an "
                       "EventsExecutor) or 'timer' (a ROS steady-clock timer)",
                       choices=('deadline', 'timer'), runtime=False)
-    stamp_tolerance_s: float = param(0.05, 's', 'a sample whose sender stamp lies further '
-                                     'than this in the future of its receive time, or 10x '
-                                     'this in the past, is invalid: the clocks of driver and '
-                                     'controller must agree to this (docs/follow-node.md)',
-                                     gt=0.0, le=10.0, runtime=False)
+    stamp_tolerance_s: float = param(0.01, 's', 'a sample whose sender stamp differs from '
+                                     'its receive time by more than this (either way) is '
+                                     'invalid: transport delay plus the clock offset of driver '
+                                     'and controller must stay below it (docs/follow-node.md)',
+                                     gt=0.0, le=1.0, runtime=False)
     diagnostics_period_s: float = param(1.0, 's', 'period of /diagnostics', ge=0.05, le=60.0,
                                         runtime=False)
     thread_priority: int = param(50, '1', 'SCHED_FIFO priority of the loop thread; 0 = the '
@@ -125,9 +125,10 @@ def ros_value(entry: Entry, value: Any) -> Any:
     """Return a value as ROS wants it for this entry: floats for float fields, lists for arrays."""
     if entry.type is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if isinstance(value, (tuple, list, array)):
+    if isinstance(value, (tuple, list, array)) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         return [float(v) for v in value]
-    return value
+    return value  # anything else goes to rclpy's type check as it is
 
 
 def _defaults(packer: CdrPacker) -> list[Any]:
@@ -150,6 +151,11 @@ class FollowNode(Node):
         except (ParameterException, ValueError, TypeError) as exc:
             raise ParameterError([f'{type(exc).__name__}: {exc}']) from exc
         self._declaring = False
+        declared = {e.name for e in node_entries} | set(self._entries)
+        unknown = sorted(set(self._parameter_overrides) - declared - {'use_sim_time'})
+        if unknown:
+            raise ParameterError([f'unknown parameter {name!r} in the parameter file or '
+                                  'command line' for name in unknown])
         self.node_params = NodeParams(**{e.name: self.get_parameter(e.name).value
                                          for e in node_entries})
         reasons = field_problems(self.node_params)
@@ -172,8 +178,7 @@ class FollowNode(Node):
         # Freshness is judged from the controller's own receive time on the steady clock,
         # never from the sender's stamp alone (safety issue); t_s counts from here.
         self._t0_ns = time.monotonic_ns()
-        self._stamp_future_ns = int(self.node_params.stamp_tolerance_s * 1e9)
-        self._stamp_past_ns = 10 * self._stamp_future_ns
+        self._stamp_tol_ns = int(self.node_params.stamp_tolerance_s * 1e9)
         self.stamp_rejects = 0
         self.tick_exceptions = 0
         self.realtime = 'none'  # what apply_realtime could set (main), for /diagnostics
@@ -286,11 +291,11 @@ class FollowNode(Node):
     def _receive(self, stamp) -> tuple[float, bool]:
         """Return the receive time (s since start, steady clock) and the stamp's plausibility.
 
-        Plausible: the sender's stamp is not in the future, nor far in the past, of the wall
-        clock now.
+        Plausible: the sender's stamp is within ``stamp_tolerance_s`` of the wall clock now
+        (not in the future, not delayed or skewed by more than that).
         """
         skew_ns = stamp.sec * 1_000_000_000 + stamp.nanosec - time.time_ns()
-        ok = -self._stamp_past_ns <= skew_ns <= self._stamp_future_ns
+        ok = -self._stamp_tol_ns <= skew_ns <= self._stamp_tol_ns
         if not ok:
             self.stamp_rejects += 1
         return (time.monotonic_ns() - self._t0_ns) * 1e-9, ok
@@ -367,7 +372,7 @@ class FollowNode(Node):
 
     def on_tick_exception(self, exc: BaseException) -> None:
         """Any exception on the tick path: zero command first, then FAULT, then the log."""
-        reason = f'exception in the follow node tick: {type(exc).__name__}: {exc}'
+        reason = f'exception in the follow node loop: {type(exc).__name__}: {exc}'
         self.tick_exceptions += 1
         try:
             self.publish_zero(reason, log=self.tick_exceptions == 1)
@@ -507,10 +512,19 @@ def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
         except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
             node.on_tick_exception(exc)
 
+    def spin(timeout_s: float) -> None:
+        # callbacks (samples, services, timers): an exception in one is a fault, not an exit
+        try:
+            executor.spin_once(timeout_sec=timeout_s)
+        except ExternalShutdownException:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            node.on_tick_exception(exc)
+
     if node.loop_mode == 'timer':
         node.create_timer(node.h_s, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
         while running[0]:
-            executor.spin_once(timeout_sec=0.05)
+            spin(0.05)
         return
     # Deadline loop: serve callbacks until the next deadline, then tick. A tick later than
     # one period behind its deadline skips ahead instead of bursting to catch up.
@@ -519,13 +533,13 @@ def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
     while running[0]:
         remaining = next_ns - mono()
         if remaining > 0:
-            executor.spin_once(timeout_sec=remaining * 1e-9)
+            spin(remaining * 1e-9)
             continue
         if remaining < -period:
             # late (descheduled): serve the samples that waited first, so a late controller
             # does not blame the sensor for its own delay
-            executor.spin_once(timeout_sec=0.0)
-            executor.spin_once(timeout_sec=0.0)
+            spin(0.0)
+            spin(0.0)
         tick()
         next_ns += period
         if mono() - next_ns > period:
@@ -601,9 +615,13 @@ def main(argv: list[str] | None = None) -> int:
             run_loop(node, executor, running)
         except ExternalShutdownException:
             stop_reason[0] = 'external shutdown'
-        # Zero velocity before anything goes down.
-        for _ in range(3):
-            node.publish_zero(stop_reason[0])
+        finally:
+            # Zero velocity before anything goes down, however the loop ended.
+            for _ in range(3):
+                try:
+                    node.publish_zero(stop_reason[0])
+                except Exception:  # noqa: BLE001 - the context may already be gone
+                    break
         executor.shutdown()
         return 0
     finally:

@@ -236,7 +236,7 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
     offset = 0.0
     target_rec = math.nan
     gradient: list[tuple[int, float]] = []  # (tick, target) of delayed gradient follows
-    reading, valid, gap_stamp = math.nan, False, -math.inf
+    reading, valid, gap_stamp, status = math.nan, False, -math.inf, 1
     enc, enc_stamp = math.nan, -math.inf
     next_due = due[0]
     k_due = 0
@@ -305,8 +305,10 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
             enc_stamp = t
         if c_truth is not None:
             c_truth(t, gap, z, x, cov_l[i], p_v)
-        # the sensor reports contact as contact (models/sensor.py: collision at gap <= 0)
-        status = 0 if valid else (2 if gap <= 0.0 else 1)
+        if not (gap_held[i] or gap_frozen[i]):
+            # the sensor reports contact as contact (models/sensor.py: collision at gap <= 0);
+            # a held or frozen sample keeps the status it was sent with
+            status = 0 if valid else (2 if gap <= 0.0 else 1)
         u = c_step(new_tick(TickInput, (t, reading, valid, gap_stamp, enc, enc_stamp,
                                         enabled, fault, status)))
         r_read[i] = reading
