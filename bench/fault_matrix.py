@@ -345,7 +345,7 @@ def live_rows(load_s: float) -> dict:
         while time.monotonic() < end:
             msg.header.stamp = probe.node.get_clock().now().to_msg()
             pub.publish(msg)
-            probe.executor.spin_once(timeout_sec=0.0005)
+            probe.spin_for(0.0005)
         probe.spin_for(0.5)
         after = cmds[n_cmd:]
         nonfinite = sum(1 for _, v, _ in after if not math.isfinite(v))
@@ -401,7 +401,7 @@ def live_rows(load_s: float) -> dict:
                 if st.name.startswith('ladrc_follow'):
                     diag.update({kv.key: kv.value for kv in st.values})
 
-        probe.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        probe.subscribe(DiagnosticArray, '/diagnostics', on_diag)
         probe.spin_for(1.2)
         row(f'following under load ({load_s:g} s, 2 busy loops)', spurious_faults=faults,
             reasons='; '.join(reasons) or '-', contact=bool(contacts_of(truth)),

@@ -102,7 +102,7 @@ def closed_loop(seconds: float, loop: str) -> dict[str, float]:
                 if st.name.startswith('ladrc_follow'):
                     diags.update({kv.key: kv.value for kv in st.values})
 
-        probe.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+        probe.subscribe(DiagnosticArray, '/diagnostics', on_diag)
         if not probe.spin_until(lambda: len(log) > 100 and log[-1][5] > 0, 30.0):
             raise RuntimeError('no follow/status: ' + nodes.log('follow')[-2000:])
         probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0))

@@ -16,7 +16,7 @@ from typing import Callable
 
 from ladrc_tools.bringup.bringup import executable_path, interrupt_process
 import rclpy
-from rclpy.experimental import EventsExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
@@ -101,14 +101,22 @@ class RawLog:
 
 
 class Probe:
-    """A test-side rclpy node that records topics and calls services."""
+    """A test-side rclpy node that records topics and calls services.
+
+    Topics are taken straight from each subscription's reader (raw bytes, a deep history) by
+    polling, with no executor: a Python executor cannot keep up with three 2 kHz topics on a
+    2-core machine (../shared/notes), and the EventsExecutor that can is experimental and was
+    seen to crash the test process when the node processes it matched were killed (rclpy issue
+    1644). Service calls go through a second node on a SingleThreadedExecutor (a few messages).
+    """
 
     def __init__(self, context, name: str = 'probe') -> None:
         self.node = rclpy.create_node(name, context=context)
-        # EventsExecutor: the SingleThreadedExecutor drops messages at 2 kHz (../shared/notes).
-        self.executor = EventsExecutor(context=context)
-        self.executor.add_node(self.node)
+        self._service_node = rclpy.create_node(f'{name}_services', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self._service_node)
         self.messages: dict[str, list] = {}
+        self._readers: list[tuple[object, RawLog]] = []
         self._clients: dict[str, object] = {}
 
     def record(self, msg_type, topic: str, qos: QoSProfile = READER,
@@ -116,15 +124,29 @@ class Probe:
         """Collect every message of ``topic`` (decoded to ``keep(msg)`` on access)."""
         store = RawLog(msg_type, keep)
         self.messages[topic] = store
-        self.node.create_subscription(msg_type, topic, store.append, qos, raw=True)
+        sub = self.node.create_subscription(msg_type, topic, store.append, qos, raw=True)
+        self._readers.append((sub, store))
         return store
+
+    def subscribe(self, msg_type, topic: str, callback: Callable, qos=10) -> None:
+        """Subscribe with a decoded callback, for low-rate topics (diagnostics, events)."""
+        self._service_node.create_subscription(msg_type, topic, callback, qos)
+
+    def poll(self) -> None:
+        """Move every message waiting in the subscriptions' histories into their logs."""
+        for sub, store in self._readers:
+            with sub.handle:
+                while (taken := sub.handle.take_message(sub.msg_type, True)) is not None:
+                    store.append(taken[0])
 
     def spin_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
+            self.poll()
             if condition():
                 return True
-            self.executor.spin_once(timeout_sec=0.02)
+            self.executor.spin_once(timeout_sec=min(0.01, max(0.0, deadline - time.monotonic())))
+        self.poll()
         return condition()
 
     def spin_for(self, seconds: float) -> None:
@@ -133,7 +155,7 @@ class Probe:
     def call(self, srv_type, name: str, request, timeout_s: float = 10.0):
         client = self._clients.get(name)
         if client is None:
-            client = self.node.create_client(srv_type, name)
+            client = self._service_node.create_client(srv_type, name)
             assert self.spin_until(client.service_is_ready, timeout_s), f'{name} not available'
             # "ready" means the server's request reader is matched; the server may not have
             # matched this client's response reader yet, and a response sent before that is
@@ -146,4 +168,5 @@ class Probe:
 
     def close(self) -> None:
         self.executor.shutdown()
+        self._service_node.destroy_node()
         self.node.destroy_node()
