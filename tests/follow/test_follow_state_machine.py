@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from ladrc_follow.control.edge import EdgeParams
 from ladrc_follow.control.follow import (
     INTERNALS_KEYS,
     FollowController,
@@ -519,7 +520,7 @@ def test_set_params_takes_effect_at_next_tick_bumplessly(following_ladrc):
     assert np.abs(np.diff(loop.u)).max() <= DU_MAX + 1e-9
     assert abs(loop.gap[-1] - 1.0) < 0.02 and 4 not in loop.states[-400:]
     with pytest.raises(ValueError):
-        c.set_params(ControllerParams(follow=FollowParams(edge_drop_mm=-1.0)))
+        c.set_params(ControllerParams(edge=EdgeParams(drop_mm=-1.0)))
 
 
 def test_mode_overrides_the_configured_controller():

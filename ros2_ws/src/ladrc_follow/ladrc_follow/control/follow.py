@@ -36,6 +36,7 @@ import math
 import numbers
 from typing import Any, NamedTuple
 
+from .edge import EDGE, FALLING, EdgeGuard
 from .follow_params import FollowParams
 from .interp import Interpolator, InterpParams
 from .ladrc import LADRC
@@ -195,6 +196,7 @@ class FollowController:
         self._dir = 1.0
         self._enc0 = 0.0
         self._surf_ref = 0.0
+        self._down_cap = math.inf  # speed cap toward the sheet (edge.py probing)
         # trust no reading beyond the encoder: the sample used last, frozen-value detection
         self._used_gstamp = math.nan
         self._acc_gap = math.nan   # the last reading accepted, and the encoder then
@@ -204,7 +206,7 @@ class FollowController:
         self._jump_t0 = math.nan  # time of the first jumped reading being held
         self._invalid_rate = 0.0   # low-passed share of invalid samples
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
-                       'out_of_range': 0, 'nonfinite': 0}
+                       'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'edge_gain': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
     # ------------------------------------------------------------------ parameters
@@ -237,14 +239,16 @@ class FollowController:
         self._lock_max = _ticks(f.locking_timeout_s, h)
         self._invalid_max = _ticks(f.invalid_timeout_s, h)
         self._miss_max = _ticks(f.miss_panel_s, h)
-        self._edge = f.edge_drop_mm
+        e = p.edge
+        self._edge = e.drop_mm
         self._c_rate = h / (f.invalid_rate_tau_s + h)  # backward-Euler low-pass, as pid.py
         self._rate_max = f.invalid_rate_max
         self._jump_mm = f.jump_mm
         self._jump_confirm_s = f.jump_confirm_s
         self._frozen_n = f.frozen_ticks
         self._frozen_mm = f.frozen_travel_mm
-        self._c_edge = h / (f.edge_ref_tau_s + h)  # backward-Euler low-pass, as pid.py
+        self._c_edge = h / (e.ref_tau_s + h)  # backward-Euler low-pass, as pid.py
+        self._guard = EdgeGuard(e, h)
         ext = p.eso.disturbance_limit
         self._ext_limit = ext if ext > 0.0 else math.inf
 
@@ -520,6 +524,7 @@ class FollowController:
             self._dulim = min(va[1] * h, self._du_max)
         self._interp.reset(self._u)
         self._enc0 = enc
+        self._guard.reset()
         target = self._target_eff
         self._dir = 1.0 if target >= gap else -1.0
         pid = self._pid
@@ -573,7 +578,8 @@ class FollowController:
             return self.fail(f'non-finite command ({u_c!r}) in state '
                              f'{FollowState(self._state).name}')
         v, du, u_prev = self._vlim, self._dulim, self._u
-        us = v if u_c > v else (-v if u_c < -v else u_c)
+        vd = v if v < self._down_cap else self._down_cap
+        us = v if u_c > v else (-vd if u_c < -vd else u_c)
         lo, hi = u_prev - du, u_prev + du
         u = lo if us < lo else (hi if us > hi else us)
         self._flags = (us != u_c) | ((u != us) << 1)
@@ -720,6 +726,26 @@ class FollowController:
             # seed: gradient -> LOCKING -> PREINTERPOLATE with the gradient's speed/acc
             self._enter_approach(gap, enc, (gv, ga))
         st = self._state
+        guard = self._guard
+        # closing in is measured until followed (approach, then the PID's first settling)
+        verdict = guard.update(enc, gap, st == _PREINTERP or not self._followed)
+        if verdict == FALLING:
+            # faster than a sheet falls: not followed down; closing in afterwards is probed
+            self.counts['fall_hold'] += 1
+            if not self._followed:
+                self._approach_ticks += 1  # held time counts toward the not-followed alarm
+                if self._approach_ticks >= self._timeout_ticks:
+                    return self._fault(self._timeout_reason(gap - self._target_eff))
+            return self._hold_up_only()
+        if verdict == EDGE:
+            self.counts['edge_gain'] += 1
+            k = guard.travel.gain
+            return self._fault(
+                f'edge: the nozzle is leaving the sheet (feedback gain {k:.2f}: the reading '
+                f'moved {k:.2f} mm per mm of axis travel over the last '
+                f'{guard.travel.window * self._h * 1e3:.3g} ms, limit {guard.params.gain_max:g}); '
+                'holding')
+        self._down_cap = guard.down_cap_mm_s
         if st == _PREINTERP:
             return self._preinterp(gap, enc)
         if self._comp and self._comp[0][0] <= self._tick:

@@ -66,8 +66,6 @@ class FollowParams(Section):
                                        gt=0.0, le=50.0)
     retract_velocity_mm_s: float = param(50.0, 'mm/s', 'collision retract: speed (capped by '
                                          'limits.v_max_mm_s)', gt=0.0, le=1000.0)
-    edge_drop_mm: float = param(2.0, 'mm', 'apparent surface drop that means out of panel '
-                                'edge; 0 = off', ge=0.0, le=50.0)
     jump_mm: float = param(0.3, 'mm', 'a new reading wider than the encoder-predicted gap by '
                            'more than this is not followed down (a sheet does not fall away that '
                            'fast in one sample)', gt=0.0, le=20.0)
@@ -78,5 +76,3 @@ class FollowParams(Section):
                               ge=2, le=1000)
     frozen_travel_mm: float = param(0.02, 'mm', 'encoder travel that a frozen reading must '
                                     'have ignored to count as frozen', gt=0.0, le=5.0)
-    edge_ref_tau_s: float = param(0.2, 's', 'time constant of the surface reference',
-                                  gt=0.0, le=10.0)

@@ -31,6 +31,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from .edge import EdgeParams
 from .eso import bandwidth_gains, euler_is_stable, zoh_gains
 from .follow_params import FollowParams
 from .interp import InterpParams
@@ -40,7 +41,8 @@ from .schema import entries, field_problems, param
 from .td import TDA_FIRMWARE, TDB_FIRMWARE, TDParams
 
 __all__ = [
-    'ControllerParams', 'ESOParams', 'KalmanParams', 'LawParams', 'LimitParams', 'PIDParams',
+    'ControllerParams', 'EdgeParams', 'ESOParams', 'KalmanParams', 'LawParams', 'LimitParams',
+    'PIDParams',
     'InterpParams', 'TDParams', 'ParameterError', 'EXTRA_VALIDATORS', 'load_params',
     'params_from_dict', 'params_to_dict', 'dump_params', 'validate', 'check', 'eso_gains',
     'law_gains', 'DEFAULT_NODE_NAME', 'FollowParams', 'parameter_file', 'CROSS_CHECKS',
@@ -141,6 +143,7 @@ class ControllerParams:
     pid: PIDParams = field(default_factory=PIDParams)
     interp: InterpParams = field(default_factory=InterpParams)
     follow: FollowParams = field(default_factory=FollowParams)
+    edge: EdgeParams = field(default_factory=EdgeParams)
 
     def replace(self, **changes: Any) -> ControllerParams:
         """Return a copy with sections or values replaced (dataclasses.replace)."""
@@ -477,11 +480,19 @@ def _follow_problems(p: ControllerParams) -> list[str]:
     return out
 
 
+def _edge_problems(p: ControllerParams) -> list[str]:
+    e = p.edge
+    if e.probe_mm_s < e.judge_mm_s:
+        return [f'edge.probe_mm_s ({e.probe_mm_s:g}) below edge.judge_mm_s ({e.judge_mm_s:g}): '
+                'closing in after a fast fall could never be judged']
+    return []
+
+
 # The checks that relate several parameters, run once every value is in its declared range.
 CROSS_CHECKS: list[Callable[[ControllerParams], list[str]]] = [
     lambda p: p.td_a.problems(p.h_s, 'td_a.'),
     lambda p: p.td_b.problems(p.h_s, 'td_b.'),
-    _eso_problems, _law_problems, _limit_problems, _follow_problems,
+    _eso_problems, _law_problems, _limit_problems, _follow_problems, _edge_problems,
 ]
 
 
