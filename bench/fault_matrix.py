@@ -90,8 +90,12 @@ class Corrupt:
 
 
 def headless(name: str, timeline=(), sheet=None, duration_s=3.5, corrupt=None,
-             scenario=None) -> dict:
-    """Run one headless case; return its row (contact, min gap, fault, downward after fault)."""
+             scenario=None, params: ControllerParams | None = None, edge: bool = False) -> dict:
+    """Run one headless case; return its row (contact, min gap, fault, downward after fault).
+
+    ``edge`` rows also report ``gap_over_target``: the smallest true gap / target gap while
+    following (the safety issue's bar for edges: >= 0.7).
+    """
     if scenario is None:
         d = dict(name=name, duration_s=duration_s, seed=3, initial_gap_mm=3.0,
                  sensor={'noise_std_mm': 0.005, 'quant_mm': 0.001},
@@ -102,7 +106,7 @@ def headless(name: str, timeline=(), sheet=None, duration_s=3.5, corrupt=None,
         sc = scenario_from_dict(d)
     else:
         sc = load_scenario(scenario)
-    c = FollowController(ControllerParams())
+    c = FollowController(params or ControllerParams())
     ctrl = c if corrupt is None else Corrupt(c, corrupt)
     res = runner.run(sc, ctrl, record_internals=True)
     gap = np.asarray(res.true_gap_mm)
@@ -110,10 +114,35 @@ def headless(name: str, timeline=(), sheet=None, duration_s=3.5, corrupt=None,
     state = np.asarray(res.internals['state'])
     faulted = bool(np.any(state == FAULT))
     k = int(np.argmax(state == FAULT)) if faulted else len(u)
+    extra = {}
+    if edge:
+        extra['gap_over_target'] = round(gap_over_target(
+            gap, np.asarray(res.internals['target_gap_mm'], dtype=float)), 3)
     return row(name, contact=bool(gap.min() <= 0.0), min_true_gap_mm=float(gap.min()),
                fault=c.fault_reason[:70] if faulted else '-',
                downward_after_fault=bool(np.any(u[k:] < 0.0)),
-               nonfinite_commands=int(np.sum(~np.isfinite(u))))
+               nonfinite_commands=int(np.sum(~np.isfinite(u))), **extra)
+
+
+def gap_over_target(gap: np.ndarray, target: np.ndarray) -> float:
+    """Smallest true gap / target of the follow in progress (held through a fault).
+
+    After a target change the smaller of the new and the previous target counts (a step up
+    starts below the new target by design).
+    """
+    ok = np.isfinite(target) & (target > 0.0)
+    if not ok.any():
+        return math.nan
+    first = int(np.argmax(ok))
+    held = np.maximum.accumulate(np.where(ok, np.arange(len(target)), first))
+    t = target[held]
+    ref = t.copy()
+    prev = t[first]
+    for i in range(first + 1, len(t)):
+        if t[i] != t[i - 1]:
+            prev = t[i - 1]
+        ref[i] = min(t[i], prev)
+    return float(np.min(gap[first:] / ref[first:]))
 
 
 def headless_rows() -> None:
@@ -124,12 +153,15 @@ def headless_rows() -> None:
     for ms in (5, 50, 500):
         headless(f'sensor stream stops {ms} ms',
                  [{'t_s': 1.5, 'do': 'sensor_dropout', 'duration_s': ms * 1e-3}], sheet=sine)
-    for cov in (0.5, 0.06, 0.0):
-        for ramp in (1.0, 0.05):
-            headless(f'edge: coverage 1 -> {cov:g} over {ramp * 1e3:g} ms',
-                     [{'t_s': 1.5, 'do': 'coverage', 'value': cov, 'ramp_s': ramp}])
-    for sc in ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1'):
-        headless(f'seed edge scenario {sc}', scenario=sc)
+    verify = params_from_dict({'edge': {'verify_drop_mm': 0.5}})
+    for label, params in (('', None), (' (verify_drop_mm 0.5)', verify)):
+        for cov in (0.5, 0.06, 0.0):
+            for ramp in (1.0, 0.05):
+                headless(f'edge: coverage 1 -> {cov:g} over {ramp * 1e3:g} ms{label}',
+                         [{'t_s': 1.5, 'do': 'coverage', 'value': cov, 'ramp_s': ramp}],
+                         params=params, edge=True)
+        for sc in ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1'):
+            headless(f'seed edge scenario {sc}{label}', scenario=sc, params=params, edge=True)
 
     def window(fn):
         return lambda t, tick: fn(tick) if 1.5 <= t < 1.52 else tick
@@ -438,6 +470,8 @@ def main() -> None:
         'recorder_kill_loss_s': live.get('recorder_kill_loss_s'),
         'downward_after_fault_rows': [r['row'] for r in ROWS if r.get('downward_after_fault')],
         'contact_rows': [r['row'] for r in ROWS if r.get('contact') is True],
+        # edges where the true gap fell below 0.7 x the target (the issue's bar), default set
+        'edge_rows_below_0_7': [r['row'] for r in ROWS if r.get('gap_over_target', 1.0) < 0.7],
         'wall_s': round(time.monotonic() - t0, 1),
         'rows': ROWS,
     }

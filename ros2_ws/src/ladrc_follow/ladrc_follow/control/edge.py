@@ -35,7 +35,7 @@ from .schema import Section, param
 
 _EDGE = 'notes §5.3 item 3 (边缘, 反馈系数)'
 
-OK, FALLING, EDGE = 0, 1, 2
+OK, FALLING, EDGE, VERIFY, UNVERIFIED = 0, 1, 2, 3, 4
 """Verdicts of :meth:`EdgeGuard.update`."""
 
 
@@ -66,6 +66,14 @@ class EdgeParams(Section):
                               'moving during a slow move would bias it', ge=1.0, le=1000.0)
     probe_mm_s: float = param(20.0, 'mm/s', 'speed cap toward the sheet after a fast fall, '
                               'until the feedback gain has found a sheet', gt=0.0, le=1000.0)
+    verify_drop_mm: float = param(0.0, 'mm', 'while following, an apparent surface this far '
+                                  'below its last verified level is verified again by a short '
+                                  'move up (gain_travel_mm at probe_mm_s, the safe direction) '
+                                  'before it is followed further down; 0 = off', ge=0.0,
+                                  le=50.0, seed=_EDGE)
+    verify_mm_s: float = param(5.0, 'mm/s', 'a verification starts only while the apparent '
+                               'surface moves slower than this (a sheet in faster motion would '
+                               'bias the move up)', gt=0.0, le=1000.0)
     probe_s: float = param(0.1, 's', 'the probe after a fast fall ends after this time without '
                            'closing in (nothing left to close)', gt=0.0, le=10.0)
 
@@ -123,9 +131,12 @@ _AVG = 4
 
 
 class EdgeGuard:
-    """The edge checks of one follow: ``update(enc, gap, approaching) -> OK | FALLING | EDGE``.
+    """The edge checks of one follow: ``update(enc, gap, approaching)`` returns a verdict.
 
-    ``down_cap_mm_s`` is the speed limit toward the sheet it asks for (inf when none).
+    OK: go on; FALLING: hold (no command toward the sheet); VERIFY: move up at ``probe_mm_s``
+    (the law is not stepped); EDGE: the gain says edge; UNVERIFIED: the move up could not be
+    judged within ``probe_s``. ``down_cap_mm_s`` is the speed limit toward the sheet it asks
+    for (inf when none).
     """
 
     def __init__(self, p: EdgeParams, h_s: float) -> None:
@@ -141,6 +152,9 @@ class EdgeGuard:
         self._z = self._r = math.nan
         self.surface_mm_s = 0.0
         self.probing = False
+        self.verifying = False
+        self.verified_mm = math.nan  # apparent surface last found over a sheet
+        self._trend_mm_s = 0.0
         self._probe_ticks = 0
         self.travel.reset()
 
@@ -164,9 +178,26 @@ class EdgeGuard:
             self._probe_ticks = 0
             self.travel.reset()
             return FALLING
+        s = enc_mm - gap_mm
+        if self.verifying:
+            # the move up: judged on upward travel, where nothing can be hit; the surface's
+            # own trend before the move is taken out of the reading (a slowly falling sheet
+            # and a slowly sliding edge alike)
+            self._probe_ticks += 1
+            k = self.travel.update(enc_mm, gap_mm + self._trend_mm_s * self._probe_ticks * self._h)
+            if k == k and dz > 0.0:
+                if k > p.gain_max:
+                    return EDGE
+                self.verifying = False
+                self.verified_mm = s
+                return OK
+            return UNVERIFIED if self._probe_ticks >= self._probe_max else VERIFY
         if approaching:
-            if self.travel.update(enc_mm, gap_mm) > p.gain_max:
+            k = self.travel.update(enc_mm, gap_mm)
+            if k > p.gain_max:
                 return EDGE
+            if k == k:
+                self.verified_mm = s
         elif self.probing:
             # after a fall, the closing in (downward travel) is what is judged
             k = self.travel.update(enc_mm, gap_mm)
@@ -175,6 +206,19 @@ class EdgeGuard:
                 if k > p.gain_max:
                     return EDGE
                 self.probing = False  # a sheet under the nozzle: full speed again
+                self.verified_mm = s
             elif self._probe_ticks >= self._probe_max:
                 self.probing = False  # nothing left to close in
+        else:
+            ver = self.verified_mm
+            if not ver == ver or s > ver:
+                self.verified_mm = s  # a rising surface (or the first followed tick) is safe
+            elif (p.verify_drop_mm > 0.0 and ver - s > p.verify_drop_mm
+                  and -p.verify_mm_s < v < p.verify_mm_s):
+                self.verifying = True
+                self._trend_mm_s = v
+                self._probe_ticks = 0
+                self.travel.reset()
+                self.travel.update(enc_mm, gap_mm)
+                return VERIFY
         return OK

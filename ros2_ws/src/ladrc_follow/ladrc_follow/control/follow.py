@@ -36,7 +36,7 @@ import math
 import numbers
 from typing import Any, NamedTuple
 
-from .edge import EDGE, FALLING, EdgeGuard
+from .edge import EDGE, FALLING, UNVERIFIED, VERIFY, EdgeGuard
 from .follow_params import FollowParams
 from .interp import Interpolator, InterpParams
 from .ladrc import LADRC
@@ -206,7 +206,8 @@ class FollowController:
         self._jump_t0 = math.nan  # time of the first jumped reading being held
         self._invalid_rate = 0.0   # low-passed share of invalid samples
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
-                       'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'edge_gain': 0}
+                       'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'verify': 0,
+                       'edge_gain': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
     # ------------------------------------------------------------------ parameters
@@ -737,6 +738,14 @@ class FollowController:
                 if self._approach_ticks >= self._timeout_ticks:
                     return self._fault(self._timeout_reason(gap - self._target_eff))
             return self._hold_up_only()
+        if verdict == VERIFY:
+            # the apparent surface fell far below its last verified level: verify it going up
+            self.counts['verify'] += 1
+            return self._move_up(guard.params.probe_mm_s)
+        if verdict == UNVERIFIED:
+            return self._fault(f'edge: the apparent surface fell more than '
+                               f'{guard.params.verify_drop_mm:g} mm and a move up of '
+                               f'{guard.params.probe_s:g} s could not verify the sheet; holding')
         if verdict == EDGE:
             self.counts['edge_gain'] += 1
             k = guard.travel.gain
@@ -880,6 +889,17 @@ class FollowController:
                 return self._fault(f'gap reading invalid ({what}) for '
                                    f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
         return self._hold_up_only()
+
+    def _move_up(self, v_mm_s: float) -> float:
+        """Command ``v_mm_s`` upward (ramped), the law not stepped; it resumes bumplessly."""
+        u = self._limit(v_mm_s)
+        self._src = 0
+        st = self._state
+        if st == _LADRC:
+            self._ladrc.u = u
+        elif st == _PID:
+            self._pid.set_pre_out(u)
+        return u
 
     def _hold_up_only(self) -> float:
         """No usable reading this tick: hold an upward command, stop motion toward the sheet.
