@@ -45,6 +45,8 @@ class EdgeParams(Section):
 
     PREFIX = 'edge.'
 
+    enabled: bool = param(True, '', 'the feedback-gain and fast-fall checks (false: as the seed '
+                          'firmware, which has neither; drop_mm is separate)', seed=_EDGE)
     drop_mm: float = param(2.0, 'mm', 'apparent surface drop (encoder − gap below its '
                            'reference) that means out of panel edge; 0 = off', ge=0.0, le=50.0,
                            seed='notes Follow_OnStep CheckForOutPanelEdge')
@@ -167,9 +169,9 @@ class EdgeGuard:
         """Judge one tick with a usable reading (see the module docstring)."""
         dz, dr = enc_mm - self._z, gap_mm - self._r
         self._z, self._r = enc_mm, gap_mm
-        if not dz == dz:
-            return OK  # first tick
         p = self.params
+        if not (dz == dz and p.enabled):
+            return OK  # first tick, or the guard is off
         # the apparent surface (encoder − gap) moves by dz − dr
         v = self.surface_mm_s = self.surface_mm_s + self._c * ((dz - dr) / self._h
                                                                - self.surface_mm_s)

@@ -264,6 +264,10 @@ def quick_scenario(scenario: Any, duration_s: float = QUICK_DURATION_S) -> Any:
                    timeline=tuple(e for e in scenario.timeline if e.t_s < duration_s))
 
 
+SEED_EDGE_RUNS = ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1')
+"""Scenarios run with ``edge.enabled`` false, as the seed ran them."""
+
+
 def _run_one(job: tuple[str, str, dict, bool]) -> SuiteRow:
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import params_from_dict
@@ -274,6 +278,10 @@ def _run_one(job: tuple[str, str, dict, bool]) -> SuiteRow:
     sc = load_scenario(scenario_ref)
     if quick:
         sc = quick_scenario(sc)
+    if sc.name in SEED_EDGE_RUNS:
+        # the notes' edge experiments ran the seed firmware, which has no edge guard: run them
+        # as the seed did (docs/safety.md has what the guard does in them)
+        params_dict = {**params_dict, 'edge': {**params_dict['edge'], 'enabled': False}}
     params = params_from_dict(params_dict)
     controller = FollowController(params, mode=VARIANTS[variant].mode)
     result = run(sc, controller, record_internals=True)
