@@ -33,6 +33,7 @@ DEPEND_KEY = {
     'yaml': 'python3-yaml',
     'matplotlib': 'python3-matplotlib',
     'rosbags': 'python3-rosbags-pip',
+    'mcap': 'mcap-ros2-support',  # rosdistro's pip key whose package depends on mcap
     'ladrc_msgs': 'ladrc_msgs',
     'std_msgs': 'std_msgs',
     'diagnostic_msgs': 'diagnostic_msgs',

@@ -23,7 +23,7 @@ from ladrc_tools.bags.typestore import ladrc_typestore
 from ladrc_tools.cli import main as ladrc
 import numpy as np
 import pytest
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
 
 H_S = 0.0005
 
@@ -97,12 +97,11 @@ def test_seq_counting():
         assert seq_of(store.serialize_cdr(msg, 'ladrc_msgs/msg/SimTruth')) == 2**40 + 7
 
 
-@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
-def test_split_writer_lists_every_complete_segment(tmp_path, storage, monkeypatch):
+def test_sqlite3_writer_lists_every_complete_segment(tmp_path, monkeypatch):
     clock = [0.0]
     monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
     path = tmp_path / 'split'
-    w = BagWriter(path, storage=storage, split_s=1.0)
+    w = BagWriter(path, storage='sqlite3', split_s=1.0)
     packer = RowPacker('ladrc_msgs/msg/VelocityCommand')
     rows = packer.pack(50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
     for i, row in enumerate(rows):
@@ -116,19 +115,77 @@ def test_split_writer_lists_every_complete_segment(tmp_path, storage, monkeypatc
     w.write('run/scenario', 10**9, string_msg('name: x\n'))
     w.close()
     files = sorted(p.name for p in path.iterdir())
-    suffix = '.mcap' if storage == 'mcap' else '.db3'
-    assert files == ['metadata.yaml'] + [f'split_{i}{suffix}' for i in range(5)]
+    assert files == ['metadata.yaml'] + [f'split_{i}.db3' for i in range(5)]
+    _check_velocity_bag(path)
+
+
+def _check_velocity_bag(path, n=50):
     with AnyReader([path]) as r:
-        conns = [c for c in r.connections if c.topic == 'axis/velocity_command']
+        conns = [c for c in r.connections if c.topic == '/axis/velocity_command']
         seqs = [r.deserialize(d, c.msgtype).seq for c, _, d in r.messages(conns)]
         qos = conns[0].ext.offered_qos_profiles[0]
-    assert seqs == list(range(50))
+    assert seqs == list(range(n))
     assert (qos.depth, qos.reliability.name, qos.durability.name) == (100, 'BEST_EFFORT',
                                                                      'VOLATILE')
     with open_bag(path) as b:
-        assert b.seq_loss('axis/velocity_command') == (50, 0)
-        cols = b.columns('axis/velocity_command')
-        assert np.allclose(cols['velocity_mm_s'], np.arange(50) * 0.5)
+        assert not b.recovered
+        assert b.seq_loss('axis/velocity_command') == (n, 0)
+        cols = b.columns('/axis/velocity_command')  # with or without the leading slash
+        assert np.allclose(cols['velocity_mm_s'], np.arange(n) * 0.5)
+
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
+def test_mcap_writer_streams_one_file_a_killed_writer_stays_readable(tmp_path, monkeypatch,
+                                                                     compression):
+    clock = [0.0]
+    monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
+    path = tmp_path / 'run'
+    w = BagWriter(path, flush_s=0.25, compression=compression)
+    packer = RowPacker('ladrc_msgs/msg/VelocityCommand')
+    rows = packer.pack(50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
+    for i, row in enumerate(rows):
+        clock[0] = i * 0.1
+        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
+        if i == 25:
+            # mid-run (as after a SIGKILL): the file has no summary yet; the tools read it
+            # by a scan, up to the last flush (every 0.25 s of writing: message 24)
+            with open_bag(path) as b:
+                assert b.recovered
+                seq = b.columns('axis/velocity_command')['seq']
+                assert seq.tolist() == list(range(int(seq[-1]) + 1))
+                assert 23 <= seq[-1] <= 25
+            with pytest.raises(AnyReaderError):
+                AnyReader([path]).open()  # rosbags needs the summary
+    w.write('run/scenario', 10**9, string_msg('name: x\n'))
+    w.close()
+    assert sorted(p.name for p in path.iterdir()) == ['metadata.yaml', 'run_0.mcap']
+    _check_velocity_bag(path)
+    # the channel metadata rosbag2's mcap plugin writes
+    from mcap.reader import make_reader
+    with open(path / 'run_0.mcap', 'rb') as f:
+        summary = make_reader(f).get_summary()
+    ch = next(c for c in summary.channels.values() if c.topic == '/axis/velocity_command')
+    assert set(ch.metadata) == {'offered_qos_profiles', 'topic_type_hash'}
+    assert ch.metadata['topic_type_hash'].startswith('RIHS01_')
+    assert summary.schemas[ch.schema_id].encoding == 'ros2msg'
+    chunks = {c.compression for c in summary.chunk_indexes}
+    assert chunks == {'' if compression == 'none' else compression}
+
+
+def test_mcap_writer_splits_by_time(tmp_path, monkeypatch):
+    clock = [0.0]
+    monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
+    path = tmp_path / 'split'
+    w = BagWriter(path, split_s=1.0)
+    rows = RowPacker('ladrc_msgs/msg/VelocityCommand').pack(
+        50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
+    for i, row in enumerate(rows):
+        clock[0] = i * 0.1
+        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
+    w.close()
+    files = sorted(p.name for p in path.iterdir())
+    assert files == ['metadata.yaml'] + [f'split_{i}.mcap' for i in range(5)]
+    _check_velocity_bag(path)
 
 
 def test_writer_refuses_existing_path_and_bad_storage(tmp_path):
@@ -143,8 +200,8 @@ def test_run_bag_has_live_layout_and_run_series(run_bag):
     n = result.t_s.size
     dropout = 20  # 0.01 s at 2 kHz without a fresh capacitive sample
     with open_bag(path) as b:
-        assert b.message_counts['follow/status'] == n
-        assert b.message_counts['axis/capacitive_height'] == n - dropout
+        assert b.count('follow/status') == n
+        assert b.count('axis/capacitive_height') == n - dropout
         assert b.custom_data['ladrc.source'] == 'headless'
         st = b.columns('follow/status')
         assert np.array_equal(st['tick'], np.arange(n))

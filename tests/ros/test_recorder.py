@@ -72,19 +72,20 @@ def test_records_every_topic_without_loss(tmp_path, procs, storage):
     out, err = rec.communicate(timeout=60)
     assert rec.returncode == 0, err[-2000:]
     summary = json.loads(out.strip().splitlines()[-1])
-    assert summary['messages_lost'] == 0, summary
+    assert summary['messages_lost'] == 0 and summary['messages_dropped'] == 0, summary
     for topic in SEQ_FIELD:
-        assert summary['messages'][topic] == ticks, (topic, summary)
+        assert summary['messages']['/' + topic] == ticks, (topic, summary)
     assert json.loads((bag / 'recording.json').read_text()) == summary
     with AnyReader([bag]) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
         counts = {t: i.msgcount for t, i in reader.topics.items()}
         seqs = [reader.deserialize(d, c.msgtype).seq for c, _, d
-                in reader.messages([c for c in reader.connections if c.topic == 'sim/truth'])]
-    assert types == TOPIC_TYPES
+                in reader.messages([c for c in reader.connections if c.topic == '/sim/truth'])]
+    # fully qualified names, as ros2 bag record stores them
+    assert types == {'/' + t.lstrip('/'): v for t, v in TOPIC_TYPES.items()}
     assert seqs == list(range(ticks))
     # latched topics published before the recorder started arrive (transient local)
-    assert counts['follow/events'] == 1 and counts['run/scenario'] == 1
+    assert counts['/follow/events'] == 1 and counts['/run/scenario'] == 1
     assert counts['/diagnostics'] >= 1
     with open_bag(bag) as b:
         assert b.seq_loss('follow/status') == (ticks, 0)
@@ -100,12 +101,12 @@ def test_sigkill_leaves_a_readable_bag(tmp_path, procs):
     os.kill(rec.pid, signal.SIGKILL)
     rec.wait(timeout=10)
     pub.kill()
-    with AnyReader([bag]) as reader:
-        conns = [c for c in reader.connections if c.topic == 'follow/status']
-        stamps = [ts for _, ts, _ in reader.messages(conns)]
-    assert len(stamps) > 1000
-    # segments close every second: the bag holds data up to about a second before the kill
-    lag_s = (kill_ns - max(stamps)) * 1e-9
-    assert lag_s < 1.6, f'last message {lag_s:.2f} s before the kill'
     with open_bag(bag) as b:
+        assert b.recovered  # the file has no summary: read by a scan
+        stamps = b.columns('follow/status', ['tick'])['timestamp_ns']
         assert b.seq_loss('axis/feedback')[1] == 0
+    assert len(stamps) > 1000
+    # chunks are flushed every 0.25 s: the bag holds data up to well under a second before
+    # the kill (the writer's queue on a loaded machine adds to it)
+    lag_s = (kill_ns - int(stamps.max())) * 1e-9
+    assert lag_s < 1.0, f'last message {lag_s:.2f} s before the kill'

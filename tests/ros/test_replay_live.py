@@ -41,14 +41,13 @@ def _follow_state(m: DiagnosticArray) -> tuple[str, str] | None:
 
 
 def _recorded(bag: Path, topic: str) -> int:
-    # messages of ``topic`` in the bag's complete segments (the recorder rewrites metadata.yaml
-    # after each 1 s segment)
+    # messages of ``topic`` as far as metadata.yaml says (the recorder rewrites it every 5 s)
     try:
         info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         return 0
     for t in info.get('topics_with_message_count') or []:
-        if t['topic_metadata']['name'] == topic:
+        if t['topic_metadata']['name'].lstrip('/') == topic.lstrip('/'):
             return int(t['message_count'])
     return 0
 

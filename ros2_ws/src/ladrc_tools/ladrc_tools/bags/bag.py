@@ -1,23 +1,28 @@
-"""rosbag2 bags of a run: a crash-safe split writer and a reader into numpy columns (no rclpy).
+"""rosbag2 bags of a run: a crash-safe writer and a reader into numpy columns (no rclpy).
 
-Writing (:class:`BagWriter`). ``rosbags`` writes ``metadata.yaml`` only on ``close()``, sqlite3
-commits only on close and mcap keeps its summary (and up to 1 MiB of messages) in memory until
-close, so a SIGKILLed writer would leave nothing readable. The writer therefore splits the bag
-into short *complete* storage files, as ``ros2 bag record --max-bag-duration`` does: each segment
-is written by its own ``rosbags`` ``Writer`` into a hidden work folder (``.segment-N/``), closed
-after ``split_s`` seconds, moved next to ``metadata.yaml`` as ``<bag>_<N>.mcap`` (or ``.db3``),
-and ``metadata.yaml`` is then rewritten atomically (temp file + ``os.replace``) to list every
-complete file. A kill loses the open segment only (at most ``split_s`` plus the writer's queue);
-``ros2 bag info``, ``AnyReader`` and these tools read the rest. No fsync: the threat is a killed
-process, not a lost page cache.
+Writing (:class:`BagWriter`), storage ``mcap`` (the default, as ``ros2 bag record``): one MCAP
+file per run (or per ``split_s`` seconds), written as a stream by :mod:`.mcap_file` with chunk
+compression (zstd by default) and flushed every ``flush_s`` seconds, so a SIGKILLed writer
+loses at most the last ``flush_s`` plus the writer's queue. ``metadata.yaml`` lists the file
+from the first moment and is rewritten (constant size) every ``metadata_s`` and on close; a
+file its writer never finished is read by a scan (below). Topic names are fully qualified
+(``/axis/capacitive_height``), as ``ros2 bag record`` writes them; channels carry
+``offered_qos_profiles`` and ``topic_type_hash`` as rosbag2's mcap plugin writes them.
 
-Every storage file carries every connection with its ``offered_qos_profiles``, so ``ros2 bag
-play`` re-offers the recorded QoS. Messages come as raw CDR bytes (the recorder writes what
-rclpy received, byte-identical to ``serialize_cdr``) or as rosbags messages.
+Storage ``sqlite3``: rosbags' sqlite3 writer commits only on close, so the bag is split into
+short *complete* files (``split_s``, as ``ros2 bag record --max-bag-duration``), each written
+in a hidden folder and moved next to ``metadata.yaml`` when complete.
 
-Reading (:func:`open_bag` -> :class:`Bag`): one-line :class:`BagError` for a missing path, a
-folder that is not a bag, a truncated or foreign file and a missing topic; topics into numpy
-columns (``field.sub`` -> array); sequence-counter loss per topic.
+No fsync: the threat is a killed process, not a lost page cache. Messages come as raw CDR
+bytes (the recorder writes what rclpy received, byte-identical to ``serialize_cdr``) or as
+rosbags messages.
+
+Reading (:func:`open_bag` -> :class:`Bag`): rosbags' ``AnyReader`` for complete bags (ours and
+``ros2 bag record``'s), a scan of the MCAP files for a bag whose writer was killed
+(``Bag.recovered``). Topics are looked up with or without the leading ``/``. One-line
+:class:`BagError` for a missing path, a folder that is not a bag, a truncated or foreign file
+and a missing topic; topics into numpy columns (``field.sub`` -> array); sequence-counter loss
+per topic.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import dump_qos_v9
 import yaml
 
+from .mcap_file import McapFileWriter, McapScan, is_complete
 from .typestore import ladrc_typestore
 
 BAG_VERSION = 9  # rosbag2 metadata version written by Jazzy
@@ -122,38 +128,55 @@ class _Segment:
     count: int
 
 
-class BagWriter:
-    """Write a rosbag2 bag (mcap or sqlite3) in complete, crash-safe segments.
+def fq(topic: str) -> str:
+    """Fully qualified topic name (``/axis/feedback``), as ``ros2 bag record`` stores it."""
+    return topic if topic.startswith('/') else '/' + topic
 
-    ``split_s`` closes a segment after that many seconds (wall clock, checked on every write
-    and on :meth:`poll`); ``None`` writes one file closed by :meth:`close` (headless runs).
-    ``name`` names the storage files (default: the folder's name).
+
+class BagWriter:
+    """Write a rosbag2 bag (mcap or sqlite3) that a killed writer leaves readable.
+
+    mcap: one streaming file, a new one every ``split_s`` seconds (``None``: one per bag),
+    flushed every ``flush_s``; ``compression`` zstd | lz4 | none. sqlite3: complete files of
+    ``split_s`` seconds (``None``: one file, closed by :meth:`close`). Times are wall-clock
+    seconds checked on every write and on :meth:`poll`. ``name`` names the storage files
+    (default: the folder's name).
     """
 
-    def __init__(self, path: str | Path, *, storage: str = 'mcap', split_s: float | None = 1.0,
+    def __init__(self, path: str | Path, *, storage: str = 'mcap', split_s: float | None = None,
+                 flush_s: float = 0.25, metadata_s: float = 5.0, compression: str = 'zstd',
                  custom_data: Mapping[str, str] | None = None, typestore: Any = None,
                  name: str | None = None) -> None:
         if storage not in STORAGES:
             raise BagError(f'unknown storage {storage!r}: use one of {", ".join(STORAGES)}')
         if split_s is not None and not split_s > 0:
             raise BagError(f'split_s must be > 0 s or None (one file), got {split_s!r}')
+        if not flush_s > 0:
+            raise BagError(f'flush_s must be > 0 s, got {flush_s!r}')
+        if compression not in ('zstd', 'lz4', 'none'):
+            raise BagError(f'unknown compression {compression!r}: use zstd, lz4 or none')
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f'{self.path} exists already: a bag is never overwritten')
         self.storage = storage
         self.split_s = split_s
+        self.flush_s = flush_s
+        self.metadata_s = metadata_s
+        self.compression = compression
         self.name = name or self.path.name  # storage files are <name>_<index>.<suffix>
         self.custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
         self.typestore = typestore or ladrc_typestore()
         self._topics: dict[str, _Topic] = {}
         self._segments: list[_Segment] = []
-        self._writer: Writer | None = None
+        self._mcap: McapFileWriter | None = None
+        self._writer: Writer | None = None  # sqlite3 segment writer
         self._conns: dict[str, Any] = {}
         self._seg_dir: Path | None = None
         self._seg_opened = 0.0
         self._seg_count = 0
         self._seg_start = 2**63 - 1
         self._seg_end = 0
+        self._flushed = self._meta_written = time.monotonic()
         self._closed = False
         self.path.mkdir(parents=True)
         self._write_metadata()  # an empty but valid bag from the first moment
@@ -162,63 +185,82 @@ class BagWriter:
     def add_topic(self, topic: str, msgtype: str | None = None,
                   qos: Qos | Sequence[Qos] | None = None) -> None:
         """Register ``topic`` (type and QoS default to the contract's); idempotent."""
-        if topic in self._topics:
+        name = fq(topic)
+        if name in self._topics:
             return
-        msgtype = msgtype or TOPIC_TYPES.get(topic)
+        short = name[1:]
+        msgtype = msgtype or TOPIC_TYPES.get(short) or TOPIC_TYPES.get(name)
         if msgtype is None:
             raise BagError(f'topic {topic!r} is not in the contract: give its message type')
         if msgtype not in self.typestore.types:
             raise BagError(f'message type {msgtype!r} of {topic!r} is unknown to the typestore')
-        qos = TOPIC_QOS.get(topic, QOS_DEFAULT) if qos is None else qos
+        if qos is None:
+            qos = TOPIC_QOS.get(short, TOPIC_QOS.get(name, QOS_DEFAULT))
         qos_t = (qos,) if isinstance(qos, Qos) else tuple(qos)
         msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
-        self._topics[topic] = _Topic(topic, msgtype, msgdef,
-                                     self.typestore.hash_rihs01(msgtype), qos_t)
+        t = self._topics[name] = _Topic(name, msgtype, msgdef,
+                                        self.typestore.hash_rihs01(msgtype), qos_t)
+        if self._mcap is not None:
+            self._mcap.add_channel(t.name, t.msgtype, t.msgdef, t.rihs01, t.qos)
         if self._writer is not None:
-            self._add_connection(self._topics[topic])
+            self._add_connection(t)
 
     def write_raw(self, topic: str, timestamp_ns: int, data: bytes | memoryview) -> None:
         """Write one CDR-serialized message received at ``timestamp_ns`` (bag time)."""
         if self._closed:
             raise BagError(f'bag {self.path} is closed')
-        if topic not in self._topics:
-            self.add_topic(topic)
-        if self._writer is None:
+        name = fq(topic)
+        if name not in self._topics:
+            self.add_topic(name)
+        if self._mcap is None and self._writer is None:
             self._open_segment()
-        self._writer.write(self._conns[topic], timestamp_ns, data)
-        self._topics[topic].count += 1
+        if self._mcap is not None:
+            self._mcap.write(name, timestamp_ns, data)
+        else:
+            self._writer.write(self._conns[name], timestamp_ns, data)
+        self._topics[name].count += 1
         self._seg_count += 1
         if timestamp_ns < self._seg_start:
             self._seg_start = timestamp_ns
         if timestamp_ns > self._seg_end:
             self._seg_end = timestamp_ns
-        if self.split_s is not None and time.monotonic() - self._seg_opened >= self.split_s:
-            self._close_segment()
+        self.poll()
 
     def write(self, topic: str, timestamp_ns: int, msg: Any) -> None:
         """Serialize a rosbags message of the topic's type and write it."""
-        if topic not in self._topics:
-            self.add_topic(topic)
-        self.write_raw(topic, timestamp_ns,
-                       self.typestore.serialize_cdr(msg, self._topics[topic].msgtype))
+        name = fq(topic)
+        if name not in self._topics:
+            self.add_topic(name)
+        self.write_raw(name, timestamp_ns,
+                       self.typestore.serialize_cdr(msg, self._topics[name].msgtype))
 
     def poll(self) -> None:
-        """Close the open segment if it is older than ``split_s`` (call while idle)."""
-        if (self._writer is not None and self.split_s is not None and self._seg_count
-                and time.monotonic() - self._seg_opened >= self.split_s):
+        """Flush, split and rewrite ``metadata.yaml`` when due (also call while idle)."""
+        if self._mcap is None and self._writer is None:
+            return
+        now = time.monotonic()
+        if (self.split_s is not None and self._seg_count
+                and now - self._seg_opened >= self.split_s):
             self._close_segment()
+            return
+        if self._mcap is not None:
+            if now - self._flushed >= self.flush_s:
+                self._mcap.flush()
+                self._flushed = now
+            if now - self._meta_written >= self.metadata_s:
+                self._write_metadata()
 
     def counts(self) -> dict[str, int]:
         """Messages written per topic so far."""
         return {t.name: t.count for t in self._topics.values()}
 
     def close(self) -> None:
-        """Close the open segment and write the final ``metadata.yaml``."""
+        """Close the open storage file and write the final ``metadata.yaml``."""
         if self._closed:
             return
-        if self._writer is None and not self._segments:
+        if self._mcap is None and self._writer is None and not self._segments:
             self._open_segment()  # a bag with topics and no messages still has a storage file
-        if self._writer is not None:
+        if self._mcap is not None or self._writer is not None:
             self._close_segment()
         self._closed = True
 
@@ -228,13 +270,26 @@ class BagWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- segments -------------------------------------------------------------------------
+    # -- storage files --------------------------------------------------------------------
     def _add_connection(self, t: _Topic) -> None:
         self._conns[t.name] = self._writer.add_connection(
             t.name, t.msgtype, msgdef=t.msgdef, rihs01=t.rihs01,
             offered_qos_profiles=list(t.qos))
 
+    def _file_name(self) -> str:
+        return f'{self.name}_{len(self._segments)}{SUFFIX[self.storage]}'
+
     def _open_segment(self) -> None:
+        self._seg_opened = self._flushed = time.monotonic()
+        self._seg_count = 0
+        self._seg_start = 2**63 - 1
+        self._seg_end = 0
+        if self.storage == 'mcap':
+            self._mcap = McapFileWriter(self.path / self._file_name(), self.compression)
+            for t in self._topics.values():
+                self._mcap.add_channel(t.name, t.msgtype, t.msgdef, t.rihs01, t.qos)
+            self._write_metadata()  # the open file is part of the bag from now on
+            return
         index = len(self._segments)
         self._seg_dir = self.path / f'.segment-{index}'
         if self._seg_dir.exists():  # left by an earlier attempt
@@ -246,36 +301,36 @@ class BagWriter:
         self._writer.open()
         for t in self._topics.values():
             self._add_connection(t)
-        self._seg_opened = time.monotonic()
-        self._seg_count = 0
-        self._seg_start = 2**63 - 1
-        self._seg_end = 0
 
     def _close_segment(self) -> None:
-        writer = self._writer
-        src = writer.storage.path
-        writer.close()
-        self._writer = None
-        index = len(self._segments)
-        name = f'{self.name}_{index}{SUFFIX[self.storage]}'
-        # the storage file only becomes part of the bag once it is complete
-        os.replace(src, self.path / name)
+        name = self._file_name()
+        if self._mcap is not None:
+            self._mcap.finish()
+            self._mcap = None
+        else:
+            writer = self._writer
+            src = writer.storage.path
+            writer.close()
+            self._writer = None
+            # the storage file only becomes part of the bag once it is complete
+            os.replace(src, self.path / name)
+            shutil.rmtree(self._seg_dir, ignore_errors=True)
+            self._seg_dir = None
         start = self._seg_start if self._seg_count else 0
         self._segments.append(_Segment(name, start, self._seg_end if self._seg_count else 0,
                                        self._seg_count))
         self._write_metadata()
-        shutil.rmtree(self._seg_dir, ignore_errors=True)
-        self._seg_dir = None
 
     def _write_metadata(self) -> None:
         segs = list(self._segments)
+        if self._mcap is not None:  # the open file, as far as written
+            segs.append(_Segment(self._file_name(), self._seg_start if self._seg_count else 0,
+                                 self._seg_end, self._seg_count))
         with_msgs = [s for s in segs if s.count]
         start = min((s.start_ns for s in with_msgs), default=0)
         end = max((s.end_ns for s in with_msgs), default=0)
-        qos_dump = {t.name: dump_qos_v9(list(t.qos)) for t in self._topics.values()}
-        # counts of complete files only (the open segment is not in the bag yet)
         done = {t.name: t.count for t in self._topics.values()}
-        if self._writer is not None:
+        if self._writer is not None:  # sqlite3: the open segment is not in the bag yet
             for name, conn in self._conns.items():
                 done[name] -= self._writer.counts[conn.id]
         info = {
@@ -288,7 +343,7 @@ class BagWriter:
             'topics_with_message_count': [
                 {'topic_metadata': {'name': t.name, 'type': t.msgtype,
                                     'serialization_format': 'cdr',
-                                    'offered_qos_profiles': qos_dump[t.name],
+                                    'offered_qos_profiles': dump_qos_v9(list(t.qos)),
                                     'type_description_hash': t.rihs01},
                  'message_count': done[t.name]}
                 for t in self._topics.values()],
@@ -305,6 +360,7 @@ class BagWriter:
         tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
                                       sort_keys=False), encoding='utf-8')
         os.replace(tmp, self.path / 'metadata.yaml')
+        self._meta_written = time.monotonic()
 
 
 # ---- fast serialization of fixed-layout rows ------------------------------------------------
@@ -645,16 +701,80 @@ def _getter(path: str) -> Callable[[Any], Any]:
     return get
 
 
-class Bag:
-    """An open bag: topics, custom data, messages, numpy columns and loss counts."""
+@dataclass
+class _ScanTopic:
+    msgtype: str
+    msgcount: int
 
-    def __init__(self, path: Path, reader: AnyReader) -> None:
+
+@dataclass
+class _ScanConnection:
+    topic: str
+    msgtype: str
+
+
+class _ScanReader:
+    """The part of rosbags' ``AnyReader`` that :class:`Bag` uses, over scanned MCAP files.
+
+    For a bag whose writer was killed: its last file has no summary, which rosbags cannot
+    open. Every file is scanned (:class:`.mcap_file.McapScan`); message types the bag defines
+    and the contract's typestore does not know are registered from their definitions.
+    """
+
+    def __init__(self, files: list[Path]) -> None:
+        from rosbags.typesys import get_types_from_msg
+
+        self.scans = [McapScan(f) for f in files]
+        self.typestore = ladrc_typestore()
+        self.topics: dict[str, _ScanTopic] = {}
+        for scan in self.scans:
+            for name, t in scan.topics.items():
+                cur = self.topics.get(name)
+                self.topics[name] = _ScanTopic(t.msgtype, t.msgcount + (cur.msgcount
+                                                                       if cur else 0))
+            for msgtype, text in scan.schemas.items():
+                if msgtype not in self.typestore.types:
+                    try:
+                        self.typestore.register(get_types_from_msg(text, msgtype))
+                    except Exception:  # a definition rosbags cannot parse: raw bytes only
+                        pass
+        self.connections = [_ScanConnection(n, t.msgtype) for n, t in self.topics.items()]
+
+    def messages(self, connections: Iterable[_ScanConnection]
+                 ) -> Iterator[tuple[_ScanConnection, int, bytes]]:
+        conns = {c.topic: c for c in connections}
+        for scan in self.scans:
+            for topic, ts, data in scan.messages(conns):
+                yield conns[topic], ts, data
+
+    def deserialize(self, data: bytes, msgtype: str) -> Any:
+        return self.typestore.deserialize_cdr(data, msgtype)
+
+    def close(self) -> None:
+        self.scans = []
+
+
+class Bag:
+    """An open bag: topics, custom data, messages, numpy columns and loss counts.
+
+    Topic names are looked up with or without their leading ``/`` (the project's older bags
+    stored ``axis/feedback``, ``ros2 bag record`` stores ``/axis/feedback``). ``recovered``:
+    the bag's writer was killed and its last file was read by a scan.
+    """
+
+    def __init__(self, path: Path, reader: Any, recovered: bool = False) -> None:
         self.path = path
         self.reader = reader
+        self.recovered = recovered
         self.topics: dict[str, str] = {name: info.msgtype
                                        for name, info in reader.topics.items()}
         self.message_counts: dict[str, int] = {name: info.msgcount
                                                for name, info in reader.topics.items()}
+        self._alias: dict[str, str] = {}
+        for name in list(self.topics):  # aliases: with and without the leading slash
+            alias = name[1:] if name.startswith('/') else '/' + name
+            if alias not in self.topics:
+                self._alias[alias] = name
         custom: dict[str, str] = {}
         meta = path / 'metadata.yaml'
         if meta.is_file():
@@ -675,10 +795,22 @@ class Bag:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def name(self, topic: str) -> str:
+        """Return the bag's own name of ``topic`` (given with or without the leading ``/``)."""
+        return self._alias.get(topic, topic)
+
+    def has(self, topic: str) -> bool:
+        """Whether the bag holds ``topic`` (with or without the leading ``/``)."""
+        return self.name(topic) in self.topics
+
+    def count(self, topic: str) -> int:
+        """Messages of ``topic`` in the bag (0 when absent)."""
+        return self.message_counts.get(self.name(topic), 0)
+
     def require(self, *topics: str) -> None:
         """Raise :class:`BagError` naming the first of ``topics`` the bag does not hold."""
         for t in topics:
-            if t not in self.topics:
+            if not self.has(t):
                 raise BagError(f'{self.path}: bag has no {t!r} topic (it holds: '
                                f'{", ".join(sorted(self.topics)) or "nothing"})')
 
@@ -687,6 +819,7 @@ class Bag:
             ) -> Iterator[tuple[int, bytes]]:
         """Yield ``(bag timestamp ns, CDR bytes)`` of ``topic`` in time order."""
         self.require(topic)
+        topic = self.name(topic)
         conns = [c for c in self.reader.connections if c.topic == topic]
         total = self.message_counts.get(topic, 0)
         try:
@@ -701,7 +834,7 @@ class Bag:
 
     def messages(self, topic: str) -> Iterator[tuple[int, Any]]:
         """Yield ``(bag timestamp ns, deserialized message)`` of ``topic``."""
-        msgtype = self.topics.get(topic)
+        msgtype = self.topics.get(self.name(topic))
         for ts, data in self.raw(topic):
             yield ts, self.reader.deserialize(data, msgtype)
 
@@ -712,8 +845,8 @@ class Bag:
         Nested fields are joined with dots (``header.stamp.sec``); ``stamp_s`` is added when
         the message has a header. Sequences (e.g. diagnostics' status list) stay objects.
         """
-        msgtype = self.topics.get(topic)
         self.require(topic)
+        msgtype = self.topics.get(self.name(topic))
         stamps: list[int] = []
         datas: list[bytes] = []
         for ts, data in self.raw(topic, progress):
@@ -808,6 +941,13 @@ def open_bag(path: str | Path) -> Bag:
             raise BagError(f'{p}: not a rosbag2 bag (no metadata.yaml beside it)')
     elif p.is_dir() and not (p / 'metadata.yaml').is_file():
         raise BagError(f'{p}: not a rosbag2 bag folder (no metadata.yaml)')
+    unfinished = _unfinished_mcap(p)
+    if unfinished:
+        # the writer was killed: rosbags needs the summary it never wrote; scan the files
+        try:
+            return Bag(p, _ScanReader(unfinished), recovered=True)
+        except Exception as exc:
+            raise BagError(f'{p}: cannot recover bag: {_one_line(exc)}') from None
     try:
         reader = AnyReader([p])
         reader.open()
@@ -816,9 +956,25 @@ def open_bag(path: str | Path) -> Bag:
     return Bag(p, reader)
 
 
+def _unfinished_mcap(folder: Path) -> list[Path] | None:
+    """Return the MCAP files if one has no footer (its writer was killed), else None."""
+    try:
+        info = yaml.safe_load((folder / 'metadata.yaml').read_text(encoding='utf-8'))
+        meta = info['rosbag2_bagfile_information']
+        if meta.get('storage_identifier') != 'mcap':
+            return None
+        files = [folder / str(f) for f in meta.get('relative_file_paths') or []]
+    except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError, AttributeError):
+        return None  # AnyReader says what is wrong with it (UnicodeDecodeError: a ValueError)
+    files = [f for f in files if f.is_file()]
+    if files and not all(is_complete(f) for f in files):
+        return files
+    return None
+
+
 def read_text_topic(bag: Bag, topic: str) -> str | None:
     """Return the last std_msgs/String ``data`` on ``topic``; None when absent."""
-    if topic not in bag.topics:
+    if not bag.has(topic):
         return None
     text = None
     for _, msg in bag.messages(topic):
@@ -839,5 +995,5 @@ def storage_of(name: str) -> str:
     return name
 
 
-__all__ = ['Bag', 'BagError', 'BagWriter', 'count_lost', 'open_bag', 'read_text_topic',
+__all__ = ['Bag', 'BagError', 'BagWriter', 'count_lost', 'fq', 'open_bag', 'read_text_topic',
            'seq_of', 'string_msg', 'TOPIC_QOS', 'TOPIC_TYPES', 'SEQ_FIELD', 'make_qos']

@@ -2,8 +2,10 @@
 
 Subscriptions are ``raw=True`` (rclpy hands over the CDR bytes, byte-identical to what the bag
 stores, so nothing is deserialized); the callback only appends ``(topic, bytes, receive time)``
-to a deque, and a writer thread writes them with :class:`ladrc_tools.bags.bag.BagWriter` (1 s
-segments, see bag.py for the crash-safety design). The node spins an ``EventsExecutor`` with a
+to a bounded deque, and a writer thread writes them with
+:class:`ladrc_tools.bags.bag.BagWriter` (one streaming MCAP file flushed every ``flush_s``, see
+bag.py for the crash-safety design). A full queue drops the new message and counts it per
+topic (summary and /diagnostics). The node spins an ``EventsExecutor`` with a
 ``spin_once`` loop: the notes' measurement (SingleThreadedExecutor dropped up to 20-30 % of
 2 kHz messages; EventsExecutor received all).
 
@@ -12,9 +14,14 @@ RELIABLE + TRANSIENT_LOCAL on ``follow/events`` (depth 100) and ``run/*`` (depth
 ``/diagnostics``. The same profiles go into the bag as ``offered_qos_profiles``.
 
 Parameters: ``output`` (bag folder; default ``bags/run_<date>_<time>``), ``storage``
-(``mcap`` | ``sqlite3``), ``split_s`` (segment length, s). On SIGINT/SIGTERM: drain the queue,
-close the bag, print a one-line JSON summary (messages per topic, messages_lost from the seq
-counters of the 2 kHz topics) and write it as ``recording.json`` into the bag folder.
+(``mcap`` | ``sqlite3``), ``split_s`` (a new storage file every that many seconds, 0 = one per
+run; sqlite3 needs it for crash safety and uses 1 s when 0), ``flush_s`` (mcap: chunk flush
+period, the most a kill loses besides the queue), ``compression`` (mcap chunks: ``zstd`` |
+``lz4`` | ``none``), ``queue_max`` (messages). Topics are stored under their fully qualified
+names (the node's namespace applies). /diagnostics once a second: queue length, messages
+written, dropped per topic. On SIGINT/SIGTERM: drain the queue, close the bag, print a one-line
+JSON summary (messages per topic, messages_lost from the seq counters of the 2 kHz topics,
+messages_dropped by the full queue) and write it as ``recording.json`` into the bag folder.
 """
 
 from __future__ import annotations
@@ -80,14 +87,28 @@ class SeqCounter:
 
 
 class Recorder:
-    """Queue + writer thread around a BagWriter (no rclpy: the node feeds :meth:`enqueue`)."""
+    """Queue + writer thread around a BagWriter (no rclpy: the node feeds :meth:`enqueue`).
 
-    def __init__(self, path: str | Path, storage: str = 'mcap', split_s: float = 1.0) -> None:
-        self.writer = BagWriter(path, storage=storage_of(storage), split_s=split_s,
+    ``topics`` maps each contract topic (``TOPIC_TYPES`` key) to the name it is stored under
+    (default: fully qualified, ``/axis/feedback``).
+    """
+
+    def __init__(self, path: str | Path, storage: str = 'mcap', split_s: float = 0.0,
+                 flush_s: float = 0.25, compression: str = 'zstd', queue_max: int = 200_000,
+                 topics: dict[str, str] | None = None) -> None:
+        if storage_of(storage) == 'sqlite3' and not split_s > 0:
+            split_s = 1.0  # rosbags' sqlite3 commits on close only: complete 1 s files
+        if not (isinstance(queue_max, int) and queue_max >= 1):
+            raise BagError(f'queue_max must be an integer >= 1, got {queue_max!r}')
+        self.writer = BagWriter(path, storage=storage, split_s=split_s if split_s > 0 else None,
+                                flush_s=flush_s, compression=compression,
                                 custom_data={'ladrc.source': 'recorder'})
-        for topic in TOPIC_TYPES:
-            self.writer.add_topic(topic)
+        self.names = topics or {t: '/' + t.lstrip('/') for t in TOPIC_TYPES}
+        for topic, name in self.names.items():
+            self.writer.add_topic(name, TOPIC_TYPES[topic])
         self.queue: deque[tuple[str, bytes, int]] = deque()
+        self.queue_max = queue_max
+        self.dropped = {t: 0 for t in TOPIC_TYPES}
         self.counters = {t: SeqCounter() for t in SEQ_FIELD}
         self._stop = threading.Event()
         self.error: str | None = None
@@ -95,13 +116,21 @@ class Recorder:
         self._thread.start()
 
     def enqueue(self, topic: str, data: bytes) -> None:
-        """Queue one received message (called from the subscription callback)."""
+        """Queue one received message (called from the subscription callback).
+
+        A full queue (the writer fell ``queue_max`` messages behind) drops the message and
+        counts it: memory stays bounded whatever the disk does.
+        """
+        if len(self.queue) >= self.queue_max:
+            self.dropped[topic] += 1
+            return
         self.queue.append((topic, data, time.time_ns()))
 
     def _drain(self) -> int:
         q = self.queue
         write = self.writer.write_raw
         counters = self.counters
+        names = self.names
         done = 0
         while q:
             topic, data, ts = q.popleft()
@@ -111,7 +140,7 @@ class Recorder:
                     c.add(seq_of(data))
                 except Exception:  # a malformed message still goes into the bag
                     pass
-            write(topic, ts, data)
+            write(names[topic], ts, data)
             done += 1
         return done
 
@@ -136,6 +165,8 @@ class Recorder:
             'bag': str(self.writer.path), 'storage': self.writer.storage,
             'messages': counts, 'messages_total': sum(counts.values()),
             'messages_lost': sum(lost.values()), 'messages_lost_by_topic': lost,
+            'messages_dropped': sum(self.dropped.values()),
+            'messages_dropped_by_topic': dict(self.dropped),
         }
         if self.error:
             summary['error'] = self.error
@@ -151,10 +182,42 @@ def lost_in_bag(bag: Any) -> dict[str, int]:
 
     out = {}
     for topic in SEQ_FIELD:
-        if topic in bag.topics:
+        if bag.has(topic):
             seq = np.fromiter((seq_of(d) for _, d in bag.raw(topic)), dtype=np.int64)
             out[topic] = count_lost(seq)
     return out
+
+
+class _Diagnostics:
+    """Once a second on /diagnostics: the writer's queue, messages written, drops per topic."""
+
+    def __init__(self, node: Any, recorder: Recorder) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.node, self.recorder = node, recorder
+        self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.name = f'{node.get_fully_qualified_name().lstrip("/")}: bag writer'
+
+    def publish(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        r = self.recorder
+        dropped = sum(r.dropped.values())
+        level = DiagnosticStatus.OK if not (dropped or r.error) else (
+            DiagnosticStatus.ERROR if r.error else DiagnosticStatus.WARN)
+        values = [KeyValue(key='queue', value=str(len(r.queue))),
+                  KeyValue(key='queue_max', value=str(r.queue_max)),
+                  KeyValue(key='messages_written',
+                           value=str(sum(r.writer.counts().values()))),
+                  KeyValue(key='messages_dropped', value=str(dropped))]
+        values += [KeyValue(key=f'dropped {t}', value=str(n)) for t, n in r.dropped.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.status = [DiagnosticStatus(
+            level=level, name=self.name, hardware_id=str(r.writer.path),
+            message=r.error or ('queue full: messages dropped' if dropped else 'recording'),
+            values=values)]
+        self.pub.publish(msg)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -177,17 +240,21 @@ def main(args: list[str] | None = None) -> int:
         output = node.declare_parameter('output', '').value or time.strftime(
             'bags/run_%Y%m%d_%H%M%S')
         storage = node.declare_parameter('storage', 'mcap').value
-        split_s = float(node.declare_parameter('split_s', 1.0).value)
+        split_s = float(node.declare_parameter('split_s', 0.0).value)
+        flush_s = float(node.declare_parameter('flush_s', 0.25).value)
+        compression = node.declare_parameter('compression', 'zstd').value
+        queue_max = int(node.declare_parameter('queue_max', 200_000).value)
+        subs = {topic: node.create_subscription(
+            _msg_class(msgtype), topic, lambda data, t=topic: recorder.enqueue(t, data),
+            _qos_profile(topic), raw=True) for topic, msgtype in TOPIC_TYPES.items()}
         try:
-            recorder = Recorder(output, storage, split_s)
-        except BagError as exc:
+            recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
+                                topics={t: s.topic_name for t, s in subs.items()})
+        except (BagError, ValueError, TypeError) as exc:
             print(f'recorder: {exc}', file=sys.stderr)
             return 2
-        for topic, msgtype in TOPIC_TYPES.items():
-            node.create_subscription(
-                _msg_class(msgtype), topic,
-                lambda data, t=topic: recorder.enqueue(t, data),
-                _qos_profile(topic), raw=True)
+        diag = _Diagnostics(node, recorder)
+        node.create_timer(1.0, diag.publish)
         executor = EventsExecutor()
         executor.add_node(node)
         node.get_logger().info(f'recording to {output} ({storage})')

@@ -148,7 +148,7 @@ def _parse_params(text: str, what: str) -> ControllerParams:
 
 
 def _read_events(bag: Bag) -> list[RecordedEvent]:
-    if 'follow/events' not in bag.topics:
+    if not bag.has('follow/events'):
         return []
     out = []
     for _, m in bag.messages('follow/events'):
@@ -162,7 +162,7 @@ def _read_events(bag: Bag) -> list[RecordedEvent]:
 
 def _first_text(bag: Bag, topic: str) -> str | None:
     # the first set: the node re-publishes run/parameters (latched) on every change
-    if topic not in bag.topics:
+    if not bag.has(topic):
         return None
     for _, msg in bag.messages(topic):
         return str(msg.data)
@@ -189,7 +189,7 @@ def load_recording(path: str | Path) -> Recording:
             else:
                 raise BagError(f'{bag.path}: follow/status has no {name!r} field: not a '
                                'ladrc_msgs/FollowStatus with the inputs of each tick')
-        if 'axis/velocity_command' in bag.topics:
+        if bag.has('axis/velocity_command'):
             cmd = bag.columns('axis/velocity_command', ['seq', 'velocity_mm_s', 'enable'])
         else:
             cmd = {'seq': np.zeros(0, np.int64), 'velocity_mm_s': np.zeros(0),

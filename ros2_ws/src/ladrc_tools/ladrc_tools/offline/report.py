@@ -93,7 +93,7 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     gap = st['gap_mm'].astype(float)
     gap_source = 'measured (follow/status gap_mm)'
     collision = np.zeros(t.size, dtype=bool)
-    if 'sim/truth' in bag.topics and bag.message_counts.get('sim/truth', 0) > 1:
+    if bag.has('sim/truth') and bag.count('sim/truth') > 1:
         tr = bag.columns('sim/truth', ['header.stamp.sec', 'header.stamp.nanosec',
                                        'true_gap_mm', 'collision'],
                          progress=stderr_progress('sim/truth') if progress else None)
@@ -116,7 +116,7 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
                           internals=internals)
     lost: dict[str, int] = {}
     for topic in SEQ_FIELD:
-        if topic in bag.topics:
+        if bag.has(topic):
             if topic == 'follow/status':
                 lost[topic] = count_lost(st['tick'].astype(np.int64))
             else:
