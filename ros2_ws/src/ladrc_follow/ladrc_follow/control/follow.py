@@ -46,7 +46,7 @@ from .pid import FollowPID
 __all__ = [
     'FollowState', 'FollowParams', 'FollowController', 'TickInput', 'GAP_STATUS_OK',
     'GAP_STATUS_OUT_OF_RANGE', 'GAP_STATUS_COLLISION',
-    'GAP_STATUS_FAULT', 'LIMIT_VELOCITY', 'LIMIT_ACCELERATION', 'LIMIT_ESO_STATE',
+    'GAP_STATUS_FAULT', 'LIMIT_VELOCITY', 'LIMIT_ACCELERATION', 'LIMIT_ESO_STATE', 'LIMIT_SOFT_Z',
     'INTERNALS_KEYS', 'COMMANDS',
 ]
 
@@ -79,6 +79,7 @@ MIN_GRADIENT = (0.1, 10.0)
 LIMIT_VELOCITY = 1
 LIMIT_ACCELERATION = 2
 LIMIT_ESO_STATE = 4
+LIMIT_SOFT_Z = 8
 
 # internals() keys = these ladrc_msgs/FollowStatus fields
 INTERNALS_KEYS = (
@@ -197,6 +198,7 @@ class FollowController:
         self._enc0 = 0.0
         self._surf_ref = 0.0
         self._down_cap = math.inf  # speed cap toward the sheet (edge.py probing)
+        self._enc_now = 0.0  # encoder position of this tick (soft travel limits)
         # trust no reading beyond the encoder: the sample used last, frozen-value detection
         self._used_gstamp = math.nan
         self._acc_gap = math.nan   # the last reading accepted, and the encoder then
@@ -222,6 +224,8 @@ class FollowController:
         self._interp = b.interp
         self._h = h
         self._v_max = p.limits.v_max_mm_s
+        self._zmin, self._zmax = p.limits.soft_z_min_mm, p.limits.soft_z_max_mm
+        self._tau_z = p.limits.soft_z_tau_s
         self._du_max = p.limits.a_max_mm_s2 * h
         self._vlim, self._dulim = self._v_max, self._du_max
         self._pid_du = p.pid.a_max_mm_s2 * h
@@ -583,7 +587,19 @@ class FollowController:
         us = v if u_c > v else (-vd if u_c < -vd else u_c)
         lo, hi = u_prev - du, u_prev + du
         u = lo if us < lo else (hi if us > hi else us)
-        self._flags = (us != u_c) | ((u != us) << 1)
+        flags = (us != u_c) | ((u != us) << 1)
+        # soft travel limits, in every state: the speed toward a limit is at most the distance
+        # left over soft_z_tau_s (an exponential approach, never past it); never forces motion
+        z = self._enc_now
+        down = (self._zmin - z) / self._tau_z if z > self._zmin else 0.0
+        up = (self._zmax - z) / self._tau_z if z < self._zmax else 0.0
+        if u < down:
+            u = down
+            flags |= LIMIT_SOFT_Z
+        elif u > up:
+            u = up
+            flags |= LIMIT_SOFT_Z
+        self._flags = flags
         self._u_unlim = u_c
         self._u = u
         return u
@@ -645,6 +661,8 @@ class FollowController:
             status = 0
         drive_bad = dfault or not den
         self._drive_bad = drive_bad
+        if enc - enc == 0.0:
+            self._enc_now = enc  # for the soft travel limits (the last finite position)
         st = self._state
         if st == _IDLE:
             if self._u < 0.0:

@@ -116,6 +116,15 @@ class LimitParams:
                               seed='notes §3.4 UpdateLADRC')
     a_max_mm_s2: float = param(4000.0, 'mm/s²', 'acceleration limit: per-tick change a_max·h',
                                ge=10.0, le=1e6, seed='notes §3.4 UpdateLADRC')
+    soft_z_min_mm: float = param(-1000.0, 'mm', 'soft travel limit, bottom (encoder position): '
+                                 'no command moves the axis below it, in any state',
+                                 ge=-10000.0, le=10000.0)
+    soft_z_max_mm: float = param(1000.0, 'mm', 'soft travel limit, top (encoder position): no '
+                                 'command moves the axis above it, in any state',
+                                 ge=-10000.0, le=10000.0)
+    soft_z_tau_s: float = param(0.05, 's', 'approach time constant at a soft limit: the speed '
+                                'toward it is at most (distance left) / soft_z_tau_s',
+                                ge=0.005, le=10.0)
 
 
 # TD defaults: ``CompELDTInit`` ints TDA (22, 13, 30, 15), TDB (12, 40, 100, 0) after td.py's
@@ -444,6 +453,9 @@ def _law_problems(p: ControllerParams) -> list[str]:
 def _limit_problems(p: ControllerParams) -> list[str]:
     lim = p.limits
     out = []
+    if not lim.soft_z_min_mm < lim.soft_z_max_mm:
+        out.append(f'limits.soft_z_min_mm ({lim.soft_z_min_mm:g}) must be below '
+                   f'limits.soft_z_max_mm ({lim.soft_z_max_mm:g})')
     for sec, obj in (('pid', p.pid), ('interp', p.interp)):
         if obj.v_max_mm_s > lim.v_max_mm_s:
             out.append(f'limits.v_max_mm_s ({lim.v_max_mm_s:g}) below {sec}.v_max_mm_s '
