@@ -105,3 +105,35 @@ def test_a_bad_parameter_file_is_one_line_and_exit_code(tmp_path, text, expect):
     assert len(err) == 1 and err[0].startswith('follow_node: '), proc.stderr
     assert expect in err[0]
     assert 'Traceback' not in proc.stderr + proc.stdout
+
+
+def test_diagnostics_named_after_the_node_and_stamped_on_its_clock(ros_context, tmp_path):
+    """Name diagnostics as diagnostic_updater does; stamp on the node clock (/clock)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from ladrc_msgs.msg import FollowStatus
+    from rosgraph_msgs.msg import Clock
+
+    nodes = NodeProcesses()
+    nodes.start('follow', 'ladrc_follow', 'follow_node', '-r', f'__ns:={NS}',
+                '-p', 'hardware_id:=head_7', '-p', 'diagnostics_period_s:=0.2',
+                '-p', 'use_sim_time:=true')
+    probe = Probe(ros_context)
+    seen = []
+    try:
+        clock = probe.node.create_publisher(Clock, '/clock', 10)
+        probe.subscribe(DiagnosticArray, '/diagnostics',
+                        lambda m: seen.extend((s.name, s.hardware_id) for s in m.status))
+        status = probe.record(FollowStatus, f'{NS}/follow/status',
+                              keep=lambda m: m.header.stamp.sec + m.header.stamp.nanosec * 1e-9)
+
+        def tick_clock() -> bool:
+            msg = Clock()
+            msg.clock.sec = 1000
+            clock.publish(msg)
+            return bool(seen) and len(status) > 10 and status[-1] == 1000.0
+
+        assert probe.spin_until(tick_clock, 30.0), nodes.log('follow')
+        assert ('machine_7/ladrc_follow: follow loop', 'head_7') in seen
+    finally:
+        probe.close()
+        nodes.close()

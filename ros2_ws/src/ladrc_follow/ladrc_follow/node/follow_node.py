@@ -95,6 +95,8 @@ class NodeParams:
                      runtime=False)
     lock_memory: bool = param(True, '', 'mlockall: no page faults on the tick path',
                               runtime=False)
+    hardware_id: str = param('z_axis', '', 'hardware_id of the /diagnostics status (named '
+                             'after the node: <namespace/name>: follow loop)', runtime=False)
 
 
 _ROS_TYPE = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
@@ -178,6 +180,9 @@ class FollowNode(Node):
         # Freshness is judged from the controller's own receive time on the steady clock,
         # never from the sender's stamp alone (safety issue); t_s counts from here.
         self._t0_ns = time.monotonic_ns()
+        self._clock = self.get_clock()  # ROS time for header stamps (use_sim_time applies)
+        # diagnostic_updater's naming: the node's fully qualified name, then the task
+        self._diag_name = f'{self.get_fully_qualified_name().lstrip("/")}: follow loop'
         self._stamp_tol_ns = int(self.node_params.stamp_tolerance_s * 1e9)
         self.stamp_rejects = 0
         self.tick_exceptions = 0
@@ -291,10 +296,11 @@ class FollowNode(Node):
     def _receive(self, stamp) -> tuple[float, bool]:
         """Return the receive time (s since start, steady clock) and the stamp's plausibility.
 
-        Plausible: the sender's stamp is within ``stamp_tolerance_s`` of the wall clock now
-        (not in the future, not delayed or skewed by more than that).
+        Plausible: the sender's stamp is within ``stamp_tolerance_s`` of the node clock now
+        (ROS time: the system clock, or /clock with ``use_sim_time``; not in the future, not
+        delayed or skewed by more than that).
         """
-        skew_ns = stamp.sec * 1_000_000_000 + stamp.nanosec - time.time_ns()
+        skew_ns = stamp.sec * 1_000_000_000 + stamp.nanosec - self._clock.now().nanoseconds
         ok = -self._stamp_tol_ns <= skew_ns <= self._stamp_tol_ns
         if not ok:
             self.stamp_rejects += 1
@@ -326,7 +332,7 @@ class FollowNode(Node):
     def tick(self) -> None:
         """One controller tick: inputs -> core -> command and status out."""
         start_mono = time.monotonic_ns()
-        now_ns = time.time_ns()
+        now_ns = self._clock.now().nanoseconds  # header stamps: the node clock (ROS time)
         if self._pending_params is not None:
             self.params, self._pending_params = self._pending_params, None
             self.controller.set_params(self.params)
@@ -381,7 +387,7 @@ class FollowNode(Node):
 
     def publish_zero(self, reason: str, log: bool = True) -> None:
         """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C)."""
-        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        sec, nsec = divmod(self._clock.now().nanoseconds, 1_000_000_000)
         cmd = self._cmd_vals
         cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, 0.0, False
         self.pub_cmd.publish(self._cmd_packer.pack(cmd))
@@ -394,7 +400,7 @@ class FollowNode(Node):
                        flag: bool = False, text: str = '', velocity_mm_s: float = 0.0,
                        accel_mm_s2: float = 0.0) -> None:
         ev = FollowEvent()
-        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        sec, nsec = divmod(self._clock.now().nanoseconds, 1_000_000_000)
         ev.header.stamp.sec = sec
         ev.header.stamp.nanosec = nsec
         ev.tick = self.tick_index  # takes effect at the start of the next tick
@@ -480,8 +486,8 @@ class FollowNode(Node):
         stats = self.loop_statistics()
         ctl = self.controller
         status = DiagnosticStatus()
-        status.name = 'ladrc_follow: follow loop'
-        status.hardware_id = 'z_axis'
+        status.name = self._diag_name
+        status.hardware_id = self.node_params.hardware_id
         state = getattr(ctl.state, 'name', str(ctl.state))
         if ctl.fault_reason:
             status.level = DiagnosticStatus.ERROR

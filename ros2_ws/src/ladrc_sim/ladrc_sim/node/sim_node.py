@@ -270,7 +270,8 @@ class SimNode(Node):
 
     def publish_samples(self, seq: int, tick, fault: bool, reason: str, truth: tuple) -> None:
         """Publish one tick's capacitive height, axis feedback and truth."""
-        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        # header stamps: the node clock (ROS time: system clock, or /clock with use_sim_time)
+        sec, nsec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
         gap = self._gap
         gap.header.stamp.sec = sec
         gap.header.stamp.nanosec = nsec
@@ -330,7 +331,9 @@ class SimNode(Node):
         periods = sorted(b.periods_us[-2000:]) or [0.0]
         b.periods_us = b.periods_us[-2000:]
         p99 = periods[min(len(periods) - 1, int(0.99 * len(periods)))]
-        st = DiagnosticStatus(name='ladrc_sim: drive', hardware_id='z_axis_sim')
+        # diagnostic_updater's naming: the node's fully qualified name, then the task
+        st = DiagnosticStatus(name=f'{self.get_fully_qualified_name().lstrip("/")}: drive',
+                              hardware_id='z_axis_sim')
         st.level = DiagnosticStatus.ERROR if b.fault_reason else DiagnosticStatus.OK
         st.message = b.fault_reason or 'running'
         values = {'seq': b.seq, 'period_p99_us': round(p99, 1), 'late_ticks': b.late_ticks,

@@ -115,7 +115,7 @@ class Recorder:
         self._thread = threading.Thread(target=self._run, name='bag-writer', daemon=True)
         self._thread.start()
 
-    def enqueue(self, topic: str, data: bytes) -> None:
+    def enqueue(self, topic: str, data: bytes, stamp_ns: int | None = None) -> None:
         """Queue one received message (called from the subscription callback).
 
         A full queue (the writer fell ``queue_max`` messages behind) drops the message and
@@ -124,7 +124,7 @@ class Recorder:
         if len(self.queue) >= self.queue_max:
             self.dropped[topic] += 1
             return
-        self.queue.append((topic, data, time.time_ns()))
+        self.queue.append((topic, data, time.time_ns() if stamp_ns is None else stamp_ns))
 
     def _drain(self) -> int:
         q = self.queue
@@ -244,8 +244,13 @@ def main(args: list[str] | None = None) -> int:
         flush_s = float(node.declare_parameter('flush_s', 0.25).value)
         compression = node.declare_parameter('compression', 'zstd').value
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
+        clock = node.get_clock()  # bag time = receive time on the node clock, as ros2 bag
+
+        def on_message(data: bytes, topic: str) -> None:
+            recorder.enqueue(topic, data, clock.now().nanoseconds)
+
         subs = {topic: node.create_subscription(
-            _msg_class(msgtype), topic, lambda data, t=topic: recorder.enqueue(t, data),
+            _msg_class(msgtype), topic, lambda data, t=topic: on_message(data, t),
             _qos_profile(topic), raw=True) for topic, msgtype in TOPIC_TYPES.items()}
         try:
             recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
