@@ -1,18 +1,22 @@
 """Launch the simulated height-follow axis on a stock Jazzy install (ros2 launch).
 
-Equivalent to the ``bringup`` command (which works where ``launch`` is not installable): both
-take their nodes and arguments from :func:`ladrc_tools.bringup.bringup.node_specs`, so they
-cannot drift apart. Isolation (ROS_DOMAIN_ID, localhost discovery) is the caller's environment
-here.
+The same nodes and parameters as the ``bringup`` command (which works where ``launch`` is not
+installable): both take them from :func:`ladrc_tools.bringup.bringup.node_specs`. When the
+scenario ends the node set stops in the safe order: the controller first (it commands zero
+velocity), then the recorder (so the bag holds that command), then launch itself. On Ctrl-C
+launch interrupts every node at once; the recorder keeps recording for its ``stop_grace_s``
+before it closes the bag, so the zero command is in the bag then too. Isolation
+(ROS_DOMAIN_ID, localhost discovery) is the caller's environment here.
 
     ros2 launch ladrc_tools bringup.launch.py scenario:=showcase bag:=/tmp/run1
+    ros2 launch ladrc_tools bringup.launch.py --show-args
 """
 
-from ladrc_tools.bringup.bringup import node_specs, ros_arguments
+from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS, node_specs
+from ladrc_tools.bringup.launching import declare_arguments, launch_nodes, stop_in_order
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
 
 
 def _nodes(context):
@@ -21,16 +25,13 @@ def _nodes(context):
 
     specs = node_specs(arg('scenario'), arg('params') or None, arg('bag') or None,
                        arg('loop'), arg('storage'))
-    return [Node(package=s.package, executable=s.executable, name=s.name, output='screen',
-                 arguments=ros_arguments(s)) for s in specs]
+    for spec in specs:
+        if spec.name == 'ladrc_follow':
+            spec.parameters['hardware_id'] = arg('hardware_id')
+    nodes = launch_nodes(specs)
+    return list(nodes.values()) + stop_in_order(nodes, first='ladrc_sim')
 
 
 def generate_launch_description():
-    return LaunchDescription([
-        DeclareLaunchArgument('scenario', default_value='showcase'),
-        DeclareLaunchArgument('params', default_value=''),
-        DeclareLaunchArgument('bag', default_value=''),
-        DeclareLaunchArgument('loop', default_value='deadline'),
-        DeclareLaunchArgument('storage', default_value='mcap'),
-        OpaqueFunction(function=_nodes),
-    ])
+    return LaunchDescription(declare_arguments(LAUNCH_ARGUMENTS)
+                             + [OpaqueFunction(function=_nodes)])

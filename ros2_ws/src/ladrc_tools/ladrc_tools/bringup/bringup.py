@@ -71,6 +71,38 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
     return specs
 
 
+def axis_node_specs(params_file: str | None = None, bag: str | None = None,
+                    loop: str = 'deadline', storage: str = 'mcap',
+                    hardware_id: str = 'z_axis') -> list[NodeSpec]:
+    """Return the nodes of a run on a real axis: the follow node (+ recorder), no simulator.
+
+    The axis' driver node is the integrator's: it publishes ``axis/capacitive_height`` and
+    ``axis/feedback`` and executes ``axis/velocity_command`` (docs/interfaces.md).
+    """
+    specs = []
+    if bag:
+        specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder',
+                              parameters={'output': bag, 'storage': storage}))
+    specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',
+                          parameters={'loop': loop, 'hardware_id': hardware_id},
+                          params_file=params_file or default_params_file()))
+    return specs
+
+
+LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
+    'scenario': ('showcase', 'scenario the simulator plays: a shipped name (ladrc_sim '
+                 'scenarios) or a YAML path; the node set stops when it ends'),
+    'params': ('', 'controller parameter file (ROS layout, /** applies to any node name); '
+               'empty: the shipped config/follow.yaml'),
+    'bag': ('', 'record every contract topic into this bag folder (must not exist); empty: '
+            'no recorder'),
+    'loop': ('deadline', "follow node tick source: 'deadline' or 'timer' (docs/follow-node.md)"),
+    'storage': ('mcap', "bag storage: 'mcap' or 'sqlite3'"),
+    'hardware_id': ('z_axis', 'hardware_id of the follow node on /diagnostics'),
+}
+"""The launch files' arguments: default and description (one declaration for both files)."""
+
+
 def ros_arguments(spec: NodeSpec) -> list[str]:
     """Return the ``--ros-args`` list of a node spec."""
     args = ['--ros-args']

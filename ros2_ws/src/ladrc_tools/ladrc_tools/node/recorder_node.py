@@ -17,11 +17,13 @@ Parameters: ``output`` (bag folder; default ``bags/run_<date>_<time>``), ``stora
 (``mcap`` | ``sqlite3``), ``split_s`` (a new storage file every that many seconds, 0 = one per
 run; sqlite3 needs it for crash safety and uses 1 s when 0), ``flush_s`` (mcap: chunk flush
 period, the most a kill loses besides the queue), ``compression`` (mcap chunks: ``zstd`` |
-``lz4`` | ``none``), ``queue_max`` (messages). Topics are stored under their fully qualified
-names (the node's namespace applies). /diagnostics once a second: queue length, messages
-written, dropped per topic. On SIGINT/SIGTERM: drain the queue, close the bag, print a one-line
-JSON summary (messages per topic, messages_lost from the seq counters of the 2 kHz topics,
-messages_dropped by the full queue) and write it as ``recording.json`` into the bag folder.
+``lz4`` | ``none``), ``queue_max`` (messages), ``stop_grace_s`` (keeps recording this long
+after SIGINT/SIGTERM, for the other nodes' last messages when all are interrupted at once).
+Topics are stored under their fully qualified names (the node's namespace applies).
+/diagnostics once a second: queue length, messages written, dropped per topic. On
+SIGINT/SIGTERM: drain the queue, close the bag, print a one-line JSON summary (messages per
+topic, messages_lost from the seq counters of the 2 kHz topics, messages_dropped by the full
+queue) and write it as ``recording.json`` into the bag folder.
 """
 
 from __future__ import annotations
@@ -244,6 +246,7 @@ def main(args: list[str] | None = None) -> int:
         flush_s = float(node.declare_parameter('flush_s', 0.25).value)
         compression = node.declare_parameter('compression', 'zstd').value
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
+        grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
         clock = node.get_clock()  # bag time = receive time on the node clock, as ros2 bag
 
         def on_message(data: bytes, topic: str) -> None:
@@ -265,6 +268,11 @@ def main(args: list[str] | None = None) -> int:
         node.get_logger().info(f'recording to {output} ({storage})')
         while not stop.is_set():
             executor.spin_once(timeout_sec=0.05)
+        # interrupted together with the other nodes (launch's Ctrl-C): keep recording a moment,
+        # so the controller's zero command on its way down is in the bag
+        end = time.monotonic() + max(0.0, grace_s)
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.02)
         executor.shutdown()
     finally:
         if recorder is not None:

@@ -1,0 +1,31 @@
+"""Launch the controller for a real Z axis: the follow node (+ recorder), no simulator.
+
+The axis' driver node is started by the integrator (it publishes ``axis/capacitive_height``
+and ``axis/feedback`` and executes ``axis/velocity_command``; ``ladrc conform`` checks one). On
+Ctrl-C the follow node commands zero velocity with the drive enable off; the recorder keeps
+recording for its ``stop_grace_s`` so the bag holds that command. When the follow node exits,
+the recorder is stopped, then launch.
+
+    ros2 launch ladrc_tools axis.launch.py params:=/etc/ladrc/head1.yaml bag:=/data/shift1
+"""
+
+from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS, axis_node_specs
+from ladrc_tools.bringup.launching import declare_arguments, launch_nodes, stop_in_order
+from launch import LaunchDescription
+from launch.actions import OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+
+ARGUMENTS = {k: v for k, v in LAUNCH_ARGUMENTS.items() if k != 'scenario'}
+
+
+def _nodes(context):
+    def arg(name):
+        return LaunchConfiguration(name).perform(context)
+
+    nodes = launch_nodes(axis_node_specs(arg('params') or None, arg('bag') or None,
+                                         arg('loop'), arg('storage'), arg('hardware_id')))
+    return list(nodes.values()) + stop_in_order(nodes, first='ladrc_follow')
+
+
+def generate_launch_description():
+    return LaunchDescription(declare_arguments(ARGUMENTS) + [OpaqueFunction(function=_nodes)])
