@@ -16,7 +16,7 @@ from ladrc_follow.control.follow import COMMANDS, FollowController
 from ladrc_follow.control.params import ControllerParams, dump_params
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
-from ladrc_tools.bags.bag import BagWriter, string_msg, write_run_bag
+from ladrc_tools.bags.bag import TOPIC_QOS, BagWriter, string_msg, write_run_bag
 from ladrc_tools.cli import main as ladrc
 from ladrc_tools.offline.replay import (
     KIND_NAMES,
@@ -31,6 +31,8 @@ from ladrc_tools.offline.replay import (
 )
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 # Every kind of event the replay must re-apply at its tick: a start, a machining flag on and
 # off (PID <-> LADRC hand-overs), a target change above the re-interpolation threshold, a
@@ -259,3 +261,34 @@ def test_bad_input_gives_one_line(headless, tmp_path, capsys):
     out.mkdir()
     assert 'exists already' in _bad(['replay', str(good), '--set', 'law.kp=3', '-o', str(out)],
                                     capsys)
+
+
+def _rewrite(src, dst, slash: bool, storage: str = 'mcap'):
+    """Copy a bag with a plain rosbags writer, topics as ros2 bag record names them (slash)."""
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    with AnyReader([src]) as r, Writer(dst, version=9, storage_plugin=plugin) as w:
+        conns = {}
+        for c in r.connections:
+            name = c.topic if slash else c.topic.lstrip('/')
+            conns[c.id] = w.add_connection(
+                name, c.msgtype, typestore=r.typestore,
+                offered_qos_profiles=[TOPIC_QOS.get(c.topic.lstrip('/'),
+                                                    TOPIC_QOS['/diagnostics'])])
+        for c, ts, data in r.messages():
+            w.write(conns[c.id], ts, data)
+
+
+@pytest.mark.parametrize('slash', [True, False])
+def test_tools_read_bags_ros2_bag_would_write(headless, tmp_path, capsys, slash):
+    """Fully qualified names (ros2 bag record) and the older relative names both work."""
+    result, path = headless
+    other = tmp_path / 'foreign'
+    _rewrite(path, other, slash)
+    with AnyReader([other]) as r:
+        assert any(c.topic.startswith('/') for c in r.connections) == slash
+    assert ladrc(['replay', str(other)]) == 0
+    line = _json_line(capsys.readouterr().out)
+    assert line['ticks'] == result.t_s.size and line['mismatches'] == 0
+    assert ladrc(['report', str(other), '-o', str(tmp_path / 'rep'), '-q']) == 0
+    assert ladrc(['export', str(other), '-o', str(tmp_path / 'csv'), '-q']) == 0
+    assert (tmp_path / 'csv' / 'follow__status.csv').is_file()

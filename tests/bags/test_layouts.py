@@ -1,0 +1,40 @@
+"""The shipped PlotJuggler and Foxglove layouts: generated, parseable, real fields."""
+
+from __future__ import annotations
+
+import json
+from xml.etree import ElementTree
+
+from ladrc_tools.bags.bag import TOPIC_TYPES
+from ladrc_tools.bags.layouts import PANELS, config_dir, foxglove_json, plotjuggler_xml
+from ladrc_tools.bags.typestore import ladrc_typestore
+
+
+def test_shipped_layouts_are_generated():
+    # regenerate with: scripts/in-env python -m ladrc_tools.bags.layouts
+    assert (config_dir() / 'plotjuggler_layout.xml').read_text() == plotjuggler_xml()
+    assert (config_dir() / 'foxglove_layout.json').read_text() == foxglove_json()
+
+
+def test_every_signal_is_a_field_of_its_topic():
+    store = ladrc_typestore()
+    for _, signals in PANELS:
+        for s in signals:
+            topic, _, field = s.rpartition('/')
+            msgtype = TOPIC_TYPES[topic.lstrip('/')]
+            names = [f[0] for f in store.fielddefs[msgtype][1]]
+            assert field in names, (s, names)
+
+
+def test_layouts_parse_and_hold_every_signal():
+    root = ElementTree.fromstring(plotjuggler_xml())
+    curves = [c.get('name') for c in root.iter('curve')]
+    assert curves == [s for _, sig in PANELS for s in sig]
+    fox = json.loads(foxglove_json())
+    paths = [p['value'] for c in fox['configById'].values() for p in c['paths']]
+    assert paths == [s.rpartition('/')[0] + '.' + s.rpartition('/')[2]
+                     for _, sig in PANELS for s in sig]
+    # the split tree holds every panel once
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node['first']) + leaves(node['second'])
+    assert sorted(leaves(fox['layout'])) == sorted(fox['configById'])
