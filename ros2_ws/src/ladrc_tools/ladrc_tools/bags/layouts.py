@@ -87,7 +87,7 @@ def _count(layout: object) -> int:
 
 
 def config_dir() -> Path:
-    """The package's config folder in the source tree."""
+    """Return the package's config folder in the source tree."""
     return Path(__file__).resolve().parents[2] / 'config'
 
 
