@@ -17,6 +17,7 @@ setup(
         ('share/' + package_name + '/scenarios', glob('ladrc_sim/headless/scenarios/*.yaml')),
     ],
     install_requires=['setuptools'],
+    extras_require={'test': ['pytest']},
     zip_safe=True,
     maintainer='LADRC follow maintainers',
     maintainer_email='maintainers@ladrc-follow.org',
