@@ -45,8 +45,10 @@ DEPEND_KEY = {
     'ladrc_follow': 'ladrc_follow',
     'ladrc_sim': 'ladrc_sim',
     'ladrc_tools': 'ladrc_tools',
+    'pytest': 'python3-pytest',
 }
 RUN_DEPEND_TAGS = ('depend', 'exec_depend')
+TEST_DEPEND_TAGS = RUN_DEPEND_TAGS + ('test_depend',)  # for the package's own test/ folder
 # setup.py runs at build time (ament_python brings setuptools); it is not a run-time import.
 BUILD_ONLY = {'setup.py'}
 
@@ -69,22 +71,23 @@ def third_party(modules: set[str], own: str) -> set[str]:
             and m != '__future__'}
 
 
-def run_depends(package_xml: str) -> set[str]:
-    """Return the run-time dependencies (``depend``, ``exec_depend``) of a package.xml text."""
+def run_depends(package_xml: str, tags: tuple[str, ...] = RUN_DEPEND_TAGS) -> set[str]:
+    """Return the dependencies of a package.xml text under ``tags`` (default: run time)."""
     root = ET.fromstring(package_xml)
-    return {el.text.strip() for tag in RUN_DEPEND_TAGS for el in root.iter(tag) if el.text}
+    return {el.text.strip() for tag in tags for el in root.iter(tag) if el.text}
 
 
-def missing_depends(modules: set[str], package_xml: str) -> list[str]:
+def missing_depends(modules: set[str], package_xml: str,
+                    tags: tuple[str, ...] = RUN_DEPEND_TAGS) -> list[str]:
     """Return one line per third-party module whose key is missing (or unknown to the map)."""
-    declared = run_depends(package_xml)
+    declared = run_depends(package_xml, tags)
     out = []
     for m in sorted(modules):
         key = DEPEND_KEY.get(m)
         if key is None:
             out.append(f'{m}: no package.xml key known for this module (add it to DEPEND_KEY)')
         elif key not in declared:
-            out.append(f'{m}: package.xml lacks <exec_depend>{key}</exec_depend>')
+            out.append(f'{m}: package.xml lacks <{tags[-1]}>{key}</{tags[-1]}>')
     return out
 
 
@@ -131,11 +134,17 @@ def test_controller_package_stays_lean(module):
 @pytest.mark.parametrize('package', PACKAGES)
 def test_package_xml_declares_every_import(package):
     modules: set[str] = set()
+    tests: set[str] = set()
     for p in _py_files(package):
-        if p.name not in BUILD_ONLY:
+        if p.name in BUILD_ONLY:
+            continue
+        if p.relative_to(SRC / package).parts[0] == 'test':  # colcon test: test_depend
+            tests |= third_party(_imports(p), package)
+        else:
             modules |= third_party(_imports(p), package)
     xml = (SRC / package / 'package.xml').read_text(encoding='utf-8')
     assert not missing_depends(modules, xml)
+    assert tests and not missing_depends(tests, xml, TEST_DEPEND_TAGS)
 
 
 # ---- the checks themselves, on small in-memory examples ------------------------------------
