@@ -13,7 +13,7 @@ test:
 	scripts/in-env ruff check .
 	scripts/in-env python -m pytest
 	scripts/noble-test
-	scripts/in-env sh -c 'cd ros2_ws && colcon test --packages-select ladrc_follow ladrc_sim ladrc_tools --return-code-on-test-failure --event-handlers console_cohesion- summary- && colcon test-result --all'
+	scripts/in-env sh -c 'cd ros2_ws && python -m colcon test --packages-select ladrc_follow ladrc_sim ladrc_tools --return-code-on-test-failure --event-handlers console_cohesion- summary- && python -m colcon test-result --all'
 
 lint:
 	scripts/in-env ruff check .

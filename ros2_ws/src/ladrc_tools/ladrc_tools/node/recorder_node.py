@@ -147,6 +147,8 @@ class Recorder:
         return done
 
     def _run(self) -> None:
+        # every storage call happens on this thread (sqlite3 connections are bound to the
+        # thread that opened them), the final close included
         try:
             while not self._stop.is_set():
                 if not self._drain():
@@ -155,12 +157,15 @@ class Recorder:
             self._drain()
         except Exception as exc:  # disk full, ...: stop writing, report at the end
             self.error = f'{type(exc).__name__}: {exc}'
+        try:
+            self.writer.close()
+        except Exception as exc:
+            self.error = self.error or f'{type(exc).__name__}: {exc}'
 
     def close(self) -> dict[str, Any]:
-        """Stop the writer thread after draining, close the bag and return the summary."""
+        """Stop the writer thread after draining (it closes the bag); return the summary."""
         self._stop.set()
         self._thread.join()
-        self.writer.close()
         counts = self.writer.counts()
         lost = {t: c.lost for t, c in self.counters.items()}
         summary: dict[str, Any] = {
