@@ -319,3 +319,33 @@ def test_simulate_rejects_bad_input(tmp_path, capsys):
     params = tmp_path / 'p.yaml'
     params.write_text('no_such_section: {x: 1}\n')
     _bad(tmp_path, ['simulate', 'step', '--params', str(params), '-o', str(out)], capsys, out)
+
+
+def test_columns_stream_in_chunks_with_mixed_layouts(tmp_path, monkeypatch):
+    """Chunked decoding equals one pass, also when some messages carry strings (slow path)."""
+    store = ladrc_typestore()
+    packer = RowPacker('ladrc_msgs/msg/FollowStatus', store)
+    rows = packer.pack(40, {'tick': np.arange(40), 'gap_mm': np.linspace(0, 1, 40),
+                            'gap_seq': np.arange(40) + 2**40})
+    path = tmp_path / 'b'
+    with BagWriter(path) as w:
+        for i, row in enumerate(rows):
+            if i in (9, 10, 31):  # a fault reason: not the fixed layout
+                msg = store.deserialize_cdr(row, 'ladrc_msgs/msg/FollowStatus')
+                msg.fault_reason = f'fault {i}'
+                w.write('follow/status', i, msg)
+            else:
+                w.write_raw('follow/status', i, row)
+    with open_bag(path) as b:
+        whole = b.columns('follow/status')
+        monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 7)
+        chunked = b.columns('follow/status')
+        some = b.columns('follow/status', ['tick', 'stamp_s'])
+    assert whole.keys() == chunked.keys()
+    for k in whole:
+        assert whole[k].dtype == chunked[k].dtype, k
+        assert np.array_equal(whole[k], chunked[k]), k
+    assert chunked['gap_seq'].dtype == np.uint64 and chunked['gap_seq'][-1] == 2**40 + 39
+    assert chunked['fault_reason'][10] == 'fault 10' and chunked['fault_reason'][11] == ''
+    assert set(some) == {'timestamp_ns', 'tick', 'header.stamp.sec', 'header.stamp.nanosec',
+                         'stamp_s'}

@@ -754,6 +754,10 @@ class _ScanReader:
         self.scans = []
 
 
+COLUMN_CHUNK = 65536
+"""Messages decoded at a time by :meth:`Bag.columns` (bounds its temporary memory)."""
+
+
 class Bag:
     """An open bag: topics, custom data, messages, numpy columns and loss counts.
 
@@ -844,26 +848,54 @@ class Bag:
 
         Nested fields are joined with dots (``header.stamp.sec``); ``stamp_s`` is added when
         the message has a header. Sequences (e.g. diagnostics' status list) stay objects.
+        Streams: messages are decoded :data:`COLUMN_CHUNK` at a time, so the memory is that of
+        the requested columns (give ``names`` for long bags), not of the serialized messages.
         """
         self.require(topic)
         msgtype = self.topics.get(self.name(topic))
-        stamps: list[int] = []
-        datas: list[bytes] = []
-        for ts, data in self.raw(topic, progress):
-            stamps.append(ts)
-            datas.append(data)
         try:
             packer = _packer(msgtype, self.reader.typestore)
         except (BagError, KeyError):
             packer = None
-        cols: dict[str, Any] = {}
-        if packer is not None and datas:
-            cols = packer.unpack(datas, names)
-        if not cols:
-            cols = self._slow_columns(msgtype, datas, names)
-        out: dict[str, np.ndarray] = {'timestamp_ns': np.asarray(stamps, dtype=np.int64)}
-        for k, v in cols.items():
-            out[k] = v if isinstance(v, np.ndarray) else _to_array(v)
+        if names is not None:
+            names = list(names)
+            if 'stamp_s' in names:
+                names += ['header.stamp.sec', 'header.stamp.nanosec']
+        parts: dict[str, list[np.ndarray]] = {}
+        stamps: list[np.ndarray] = []
+        chunk_ts: list[int] = []
+        chunk: list[bytes] = []
+
+        def flush() -> None:
+            cols: dict[str, Any] = {}
+            if packer is not None:
+                cols = packer.unpack(chunk, names)
+            if not cols:  # strings in the messages: the general (slow) path for this chunk
+                slow = self._slow_columns(msgtype, chunk, names)
+                if packer is not None:  # the same columns, order and types as the fast path
+                    slow = {k: slow[k] for k in packer._order if k in slow}
+                for k, v in slow.items():
+                    a = _to_array(v)
+                    if packer is not None and k in packer.fields and a.dtype != object:
+                        a = a.astype(packer.dtype[k])
+                    cols[k] = a
+            for k, v in cols.items():
+                parts.setdefault(k, []).append(v)
+            stamps.append(np.asarray(chunk_ts, dtype=np.int64))
+            chunk.clear()
+            chunk_ts.clear()
+
+        for ts, data in self.raw(topic, progress):
+            chunk_ts.append(ts)
+            chunk.append(data)
+            if len(chunk) >= COLUMN_CHUNK:
+                flush()
+        if chunk:
+            flush()
+        out: dict[str, np.ndarray] = {
+            'timestamp_ns': np.concatenate(stamps) if stamps else np.zeros(0, np.int64)}
+        for k, v in parts.items():
+            out[k] = v[0] if len(v) == 1 else np.concatenate(v)
         if 'header.stamp.sec' in out:
             out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
         return out

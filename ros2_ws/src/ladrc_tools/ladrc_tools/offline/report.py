@@ -58,13 +58,19 @@ def _stats(x: np.ndarray) -> dict[str, float]:
             'max': float(np.max(x))}
 
 
+REPORT_FIELDS = ('tick', 'stamp_s', 'state', 'target_gap_mm', 'td_x1_mm', 'followed',
+                 'velocity_mm_s', 'u_unlimited_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3',
+                 'gap_mm', 'limit_flags', 'period_us', 'compute_us', 'input_age_us', 'overrun')
+"""The follow/status fields the report reads (a long bag is read into these columns only)."""
+
+
 def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``)."""
     from ladrc_sim.headless import metrics as M
 
     bag.require('follow/status')
     prog = stderr_progress('follow/status') if progress else None
-    st = bag.columns('follow/status', progress=prog)
+    st = bag.columns('follow/status', REPORT_FIELDS, progress=prog)  # only what it uses
     n_status = st['tick'].size if 'tick' in st else 0
     if n_status < 2:
         raise BagError(f'{bag.path}: follow/status holds {n_status} message(s); '
