@@ -97,21 +97,30 @@ def test_seq_counting():
         assert seq_of(store.serialize_cdr(msg, 'ladrc_msgs/msg/SimTruth')) == 2**40 + 7
 
 
+def _write_velocity_rows(w, clock, at=None, check=None, n=50):
+    """Write ``n`` VelocityCommand rows 0.1 s (mocked clock) apart; ``check()`` at ``at``."""
+    rows = RowPacker('ladrc_msgs/msg/VelocityCommand').pack(
+        n, {'seq': np.arange(n), 'velocity_mm_s': np.arange(n) * 0.5})
+    for i, row in enumerate(rows):
+        clock[0] = i * 0.1
+        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
+        if i == at:
+            check()
+
+
 def test_sqlite3_writer_lists_every_complete_segment(tmp_path, monkeypatch):
     clock = [0.0]
     monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
     path = tmp_path / 'split'
     w = BagWriter(path, storage='sqlite3', split_s=1.0)
-    packer = RowPacker('ladrc_msgs/msg/VelocityCommand')
-    rows = packer.pack(50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
-    for i, row in enumerate(rows):
-        clock[0] = i * 0.1
-        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
-        if i == 25:
-            # a segment closes on the write at which it is split_s old: 11 messages each;
-            # mid-run, the bag on disk already holds the two closed segments (and no more)
-            with AnyReader([path]) as r:
-                assert r.message_count == 22
+
+    def mid_run():
+        # a segment closes on the write at which it is split_s old: 11 messages each;
+        # mid-run, the bag on disk already holds the two closed segments (and no more)
+        with AnyReader([path]) as r:
+            assert r.message_count == 22
+
+    _write_velocity_rows(w, clock, 25, mid_run)
     w.write('run/scenario', 10**9, string_msg('name: x\n'))
     w.close()
     files = sorted(p.name for p in path.iterdir())
@@ -141,21 +150,19 @@ def test_mcap_writer_streams_one_file_a_killed_writer_stays_readable(tmp_path, m
     monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
     path = tmp_path / 'run'
     w = BagWriter(path, flush_s=0.25, compression=compression)
-    packer = RowPacker('ladrc_msgs/msg/VelocityCommand')
-    rows = packer.pack(50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
-    for i, row in enumerate(rows):
-        clock[0] = i * 0.1
-        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
-        if i == 25:
-            # mid-run (as after a SIGKILL): the file has no summary yet; the tools read it
-            # by a scan, up to the last flush (every 0.25 s of writing: message 24)
-            with open_bag(path) as b:
-                assert b.recovered
-                seq = b.columns('axis/velocity_command')['seq']
-                assert seq.tolist() == list(range(int(seq[-1]) + 1))
-                assert 23 <= seq[-1] <= 25
-            with pytest.raises(AnyReaderError):
-                AnyReader([path]).open()  # rosbags needs the summary
+
+    def mid_run():
+        # mid-run (as after a SIGKILL): the file has no summary yet; the tools read it
+        # by a scan, up to the last flush (every 0.25 s of writing: message 24)
+        with open_bag(path) as b:
+            assert b.recovered
+            seq = b.columns('axis/velocity_command')['seq']
+            assert seq.tolist() == list(range(int(seq[-1]) + 1))
+            assert 23 <= seq[-1] <= 25
+        with pytest.raises(AnyReaderError):
+            AnyReader([path]).open()  # rosbags needs the summary
+
+    _write_velocity_rows(w, clock, 25, mid_run)
     w.write('run/scenario', 10**9, string_msg('name: x\n'))
     w.close()
     assert sorted(p.name for p in path.iterdir()) == ['metadata.yaml', 'run_0.mcap']
@@ -177,11 +184,7 @@ def test_mcap_writer_splits_by_time(tmp_path, monkeypatch):
     monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
     path = tmp_path / 'split'
     w = BagWriter(path, split_s=1.0)
-    rows = RowPacker('ladrc_msgs/msg/VelocityCommand').pack(
-        50, {'seq': np.arange(50), 'velocity_mm_s': np.arange(50) * 0.5})
-    for i, row in enumerate(rows):
-        clock[0] = i * 0.1
-        w.write_raw('axis/velocity_command', 10**9 + i * 10**8, row)
+    _write_velocity_rows(w, clock)
     w.close()
     files = sorted(p.name for p in path.iterdir())
     assert files == ['metadata.yaml'] + [f'split_{i}.mcap' for i in range(5)]
