@@ -242,7 +242,7 @@ def live_rows(load_s: float) -> dict:
     from rosnodes import NodeProcesses, Probe
 
     out: dict = {'node_crashes': 0}
-    domains = iter(random.sample(range(1, 102), 6))
+    domains = iter(random.sample(range(1, 102), 12))  # one per live setup (recorder: 3)
 
     def fresh(name: str):
         """Return the processes and probe of one row, on a DDS domain of its own.
