@@ -1,6 +1,7 @@
-"""Shift-long recording: the recorder's writer path fed a whole shift as fast as it can.
+"""Shift-long recording: the recorder's writer path fed a whole shift, and the tools on it.
 
-    scripts/in-env python bench/bag_scale.py [--hours 4] [--out DIR]
+    scripts/in-env python bench/bag_scale.py [--hours 4] [--out DIR]           # part (a)
+    scripts/in-env python bench/bag_scale.py --tools [--tool-hours 1] [--bag DIR]  # part (b)
 
 Part (a) of the recording issue: the contract's 2 kHz topics (capacitive height, feedback,
 velocity command, follow status, sim truth: 10 000 messages per second of simulated time,
@@ -9,8 +10,12 @@ writer thread calls it, on a simulated clock (so the 0.25 s flushes and the 5 s
 ``metadata.yaml`` rewrites happen per simulated second, as live). Reported: the cost of the
 periodic work (flush + metadata) over the first and the last simulated minutes and their ratio
 (target <= 1.5), messages written vs fed (target: all), peak RSS, bytes per hour, and the
-bag read back (message count). Part (b), report and replay of an hour-long bag, is not built
-yet (docs/bags-and-reports.md). Last line: JSON.
+bag read back (message count).
+
+Part (b) (``--tools``): a headless run of ``--tool-hours`` (a 0.3 mm 0.5 Hz sine sheet, the
+shipped controller) written as a bag (or ``--bag``), then ``ladrc replay`` and
+``ladrc report`` on it, each in its own process: wall time, times real time (targets: replay
+>= 20x, report >= 100x) and peak RSS (target <= 1 GiB). Last line: JSON.
 """
 
 from __future__ import annotations
@@ -51,11 +56,80 @@ class SimClock:
         return self.t
 
 
+_CHILD = ('import json, resource, sys\n'
+          'from ladrc_tools.cli import main\n'
+          'rc = main(sys.argv[1:])\n'
+          'print(json.dumps({"rc": rc, "rss_kib": '
+          'resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}), file=sys.stderr)\n')
+
+
+def _tool(args: list[str]) -> dict:
+    """Run ``ladrc ARGS`` in its own process; wall time and its peak RSS."""
+    import subprocess
+
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, '-c', _CHILD, *args], capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    last = [ln for ln in p.stderr.splitlines() if ln.startswith('{"rc"')]
+    info = json.loads(last[-1]) if last else {'rc': p.returncode, 'rss_kib': None}
+    if not last:
+        print(p.stderr[-2000:], file=sys.stderr)
+    tail = [ln for ln in p.stdout.splitlines() if ln.startswith('{')]
+    return {'wall_s': round(wall, 1), 'rc': info['rc'],
+            'peak_rss_mib': round(info['rss_kib'] / 1024, 1) if info['rss_kib'] else None,
+            'last_line': json.loads(tail[-1]) if tail else None}
+
+
+def tools(hours: float, bag: str | None) -> None:
+    """Part (b): replay and report of a long headless bag."""
+    from ladrc_follow.control.follow import FollowController
+    from ladrc_follow.control.params import ControllerParams, dump_params
+    from ladrc_sim.headless.runner import run
+    from ladrc_sim.headless.scenario import scenario_from_dict
+    from ladrc_tools.bags.bag import write_run_bag
+
+    tmp = Path(tempfile.mkdtemp(prefix='bag-scale-tools-'))
+    seconds = hours * 3600
+    if bag is None:
+        sc = scenario_from_dict({
+            'name': 'shift', 'duration_s': seconds, 'seed': 3, 'initial_gap_mm': 3.0,
+            'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
+            'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 0.5}]},
+            'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
+        params = ControllerParams()
+        t0 = time.perf_counter()
+        result = run(sc, FollowController(params), record_internals=True)
+        t1 = time.perf_counter()
+        bag = str(tmp / 'shift')
+        write_run_bag(result, bag, dump_params(params), 'name: shift\n')
+        t2 = time.perf_counter()
+        del result
+        print(f'bag: {seconds:.0f} s simulated in {t1 - t0:.0f} s, written in {t2 - t1:.0f} s',
+              file=sys.stderr, flush=True)
+    size = sum(f.stat().st_size for f in Path(bag).iterdir())
+    replay = _tool(['replay', bag])
+    report = _tool(['report', bag, '-o', str(tmp / 'report'), '-q'])
+    out = {'hours': hours, 'bag_bytes': size,
+           'replay': {**{k: v for k, v in replay.items() if k != 'last_line'},
+                      'realtime_x': round(seconds / replay['wall_s'], 1),
+                      'mismatches': (replay['last_line'] or {}).get('mismatches')},
+           'report': {**{k: v for k, v in report.items() if k != 'last_line'},
+                      'realtime_x': round(seconds / report['wall_s'], 1)}}
+    shutil.rmtree(tmp, ignore_errors=True)
+    print(json.dumps(out))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--hours', type=float, default=4.0, help='simulated recording length')
     ap.add_argument('--out', default=None, help='bag folder (default: a temporary one)')
+    ap.add_argument('--tools', action='store_true', help='part (b): replay and report')
+    ap.add_argument('--tool-hours', type=float, default=1.0, help='part (b) bag length')
+    ap.add_argument('--bag', default=None, help='part (b): use this bag instead')
     a = ap.parse_args()
+    if a.tools:
+        tools(a.tool_hours, a.bag)
+        return
     tmp = None if a.out else Path(tempfile.mkdtemp(prefix='bag-scale-'))
     path = Path(a.out) if a.out else tmp / 'shift'
     # one second of each topic, pre-serialized (a varying seq would not change the cost)

@@ -62,6 +62,12 @@ INPUT_FIELDS = ('t_s', 'gap_mm', 'gap_valid', 'gap_stamp_s', 'encoder_mm', 'enco
 COMPARED_INTERNALS = tuple(k for k in INTERNALS_KEYS if k not in ('velocity_mm_s',
                                                                    'fault_reason'))
 
+# The follow/status fields replay reads (a long bag is read into these columns only).
+REPLAY_FIELDS = ('tick', 'velocity_mm_s') + INPUT_FIELDS + tuple(
+    k for k in COMPARED_INTERNALS if k not in INPUT_FIELDS)
+CHUNK_TICKS = 65536
+"""Ticks stepped per batch: Python lists and internals rows exist for one batch at a time."""
+
 OPEN_LOOP_NOTE = ('open loop: the recorded inputs (gap, encoder) do not react to the what-if '
                   'command; for a closed-loop what-if on a headless scenario use '
                   '`ladrc simulate SCENARIO --params FILE`')
@@ -173,7 +179,7 @@ def load_recording(path: str | Path) -> Recording:
     """Read what :func:`replay` needs from a bag; :class:`BagError` (one line) if unusable."""
     with open_bag(path) as bag:
         bag.require('follow/status')
-        st = bag.columns('follow/status')
+        st = bag.columns('follow/status', REPLAY_FIELDS)
         if st['tick'].size == 0:
             raise BagError(f'{bag.path}: follow/status holds no message: nothing to replay')
         notes: list[str] = []
@@ -362,79 +368,91 @@ def replay(rec: Recording, params: ControllerParams | None = None, *,
     pins = dict(overrides or {})
     ctl = FollowController(start, mode=mode or rec.mode)
     n = rec.ticks.size
-    ticks = rec.ticks.tolist()
-    cols = [rec.inputs[f].tolist() for f in INPUT_FIELDS]
-    t_l, gap_l, valid_l, gst_l, enc_l, est_l, den_l, dfl_l, stat_l = cols
-    valid_l = [bool(v) for v in valid_l]
-    den_l = [bool(v) for v in den_l]
-    dfl_l = [bool(v) for v in dfl_l]
-    stat_l = [int(v) for v in stat_l]
     events = rec.events
     n_ev = len(events)
     j = 0
     recorded_set = rec.params
     rejected: list[str] = []
     notes: list[str] = []
-    out_v = [0.0] * n
-    out_en = [False] * n
-    rows: list[dict] | None = [] if record_internals else None
+    out_v = np.zeros(n, dtype=np.float64)
+    out_en = np.zeros(n, dtype=bool)
+    int_parts: dict[str, list[np.ndarray]] = {k: [] for k in COMPARED_INTERNALS}
     new_tick = tuple.__new__
     step = ctl.step
     internals = ctl.internals
     wall0 = time.perf_counter()
-    for i in range(n):
-        k = ticks[i]
-        # events due at or before this tick (also those of ticks missing in the bag)
-        while j < n_ev and events[j].tick <= k:
-            ev = events[j]
-            j += 1
-            if ev.kind == PARAMETERS:
-                try:
-                    new_set = params_from_dict(yaml.safe_load(ev.text))
-                except (yaml.YAMLError, ParameterError) as exc:
-                    notes.append(f'tick {ev.tick}: recorded parameter set unusable '
-                                 f'({" ".join(str(exc).split())[:120]}); not applied')
-                    continue
-                if own:
-                    target = new_set
-                else:
-                    change = _delta(recorded_set, new_set)
-                    change.update(pins)
+    for c0 in range(0, n, CHUNK_TICKS):
+        c1 = min(n, c0 + CHUNK_TICKS)
+        # plain Python values for one batch (the per-tick path is scalar code)
+        ticks = rec.ticks[c0:c1].tolist()
+        t_l, gap_l, valid_l, gst_l, enc_l, est_l, den_l, dfl_l, stat_l = (
+            rec.inputs[f][c0:c1].tolist() for f in INPUT_FIELDS)
+        valid_l = [bool(v) for v in valid_l]
+        den_l = [bool(v) for v in den_l]
+        dfl_l = [bool(v) for v in dfl_l]
+        stat_l = [int(v) for v in stat_l]
+        chunk_v = [0.0] * (c1 - c0)
+        chunk_en = [False] * (c1 - c0)
+        rows: list[dict] | None = [] if record_internals else None
+        for i in range(c1 - c0):
+            k = ticks[i]
+            # events due at or before this tick (also those of ticks missing in the bag)
+            while j < n_ev and events[j].tick <= k:
+                ev = events[j]
+                j += 1
+                if ev.kind == PARAMETERS:
                     try:
-                        target = _with(ctl.params, change, f'tick {ev.tick} parameter change')
-                    except ReplayError as exc:
-                        notes.append(f'{exc}; not applied')
-                        recorded_set = new_set
+                        new_set = params_from_dict(yaml.safe_load(ev.text))
+                    except (yaml.YAMLError, ParameterError) as exc:
+                        notes.append(f'tick {ev.tick}: recorded parameter set unusable '
+                                     f'({" ".join(str(exc).split())[:120]}); not applied')
                         continue
-                recorded_set = new_set
-                try:
-                    ctl.set_params(target)
-                except ValueError as exc:
-                    notes.append(f'tick {ev.tick}: parameter set refused '
-                                 f'({" ".join(str(exc).split())[:120]})')
-            elif ev.kind in KIND_NAMES:
-                name, kwargs = event_command(ev)
-                ok, msg = ctl.command(name, **kwargs)
-                if not ok:
-                    rejected.append(f'tick {ev.tick} {name}: {msg}')
-            else:
-                notes.append(f'tick {ev.tick}: unknown event kind {ev.kind} ignored')
-        u = step(new_tick(TickInput, (t_l[i], gap_l[i], valid_l[i], gst_l[i], enc_l[i],
-                                      est_l[i], den_l[i], dfl_l[i], stat_l[i])))
-        # follow_node: the velocity sent is the step output when enabled, else 0.0
-        if ctl.enable:
-            out_v[i] = u
-            out_en[i] = True
+                    if own:
+                        target = new_set
+                    else:
+                        change = _delta(recorded_set, new_set)
+                        change.update(pins)
+                        try:
+                            target = _with(ctl.params, change,
+                                           f'tick {ev.tick} parameter change')
+                        except ReplayError as exc:
+                            notes.append(f'{exc}; not applied')
+                            recorded_set = new_set
+                            continue
+                    recorded_set = new_set
+                    try:
+                        ctl.set_params(target)
+                    except ValueError as exc:
+                        notes.append(f'tick {ev.tick}: parameter set refused '
+                                     f'({" ".join(str(exc).split())[:120]})')
+                elif ev.kind in KIND_NAMES:
+                    name, kwargs = event_command(ev)
+                    ok, msg = ctl.command(name, **kwargs)
+                    if not ok:
+                        rejected.append(f'tick {ev.tick} {name}: {msg}')
+                else:
+                    notes.append(f'tick {ev.tick}: unknown event kind {ev.kind} ignored')
+            u = step(new_tick(TickInput, (t_l[i], gap_l[i], valid_l[i], gst_l[i], enc_l[i],
+                                          est_l[i], den_l[i], dfl_l[i], stat_l[i])))
+            # follow_node: the velocity sent is the step output when enabled, else 0.0
+            if ctl.enable:
+                chunk_v[i] = u
+                chunk_en[i] = True
+            if rows is not None:
+                rows.append(internals())
+        out_v[c0:c1] = chunk_v
+        out_en[c0:c1] = chunk_en
         if rows is not None:
-            rows.append(internals())
+            for key in COMPARED_INTERNALS:
+                int_parts[key].append(np.fromiter((r[key] for r in rows), dtype=float,
+                                                  count=len(rows)))
     if j < n_ev:
         notes.append(f'{n_ev - j} event(s) after the last recorded tick not applied')
-    int_arrays = ({k: np.fromiter((r[k] for r in rows), dtype=float, count=n)
-                   for k in COMPARED_INTERNALS} if rows is not None else {})
+    int_arrays = ({k: (np.concatenate(v) if v else np.zeros(0)) for k, v in int_parts.items()}
+                  if record_internals else {})
     wall = time.perf_counter() - wall0
     src = params_source or (rec.params_source if own else 'what-if')
-    return ReplayResult(velocity=np.asarray(out_v, dtype=np.float64),
-                        enable=np.asarray(out_en, dtype=bool), internals=int_arrays,
+    return ReplayResult(velocity=out_v, enable=out_en, internals=int_arrays,
                         params=start, params_source=src, rejected=rejected, notes=notes,
                         wall_s=wall)
 
