@@ -848,11 +848,28 @@ class Bag:
 
         Nested fields are joined with dots (``header.stamp.sec``); ``stamp_s`` is added when
         the message has a header. Sequences (e.g. diagnostics' status list) stay objects.
-        Streams: messages are decoded :data:`COLUMN_CHUNK` at a time, so the memory is that of
-        the requested columns (give ``names`` for long bags), not of the serialized messages.
+        Decoded :data:`COLUMN_CHUNK` messages at a time (:meth:`iter_columns`), so the memory is
+        that of the requested columns (give ``names`` for long bags), not of the messages.
+        """
+        parts: dict[str, list[np.ndarray]] = {}
+        for cols in self.iter_columns(topic, names, progress):
+            for k, v in cols.items():
+                parts.setdefault(k, []).append(v)
+        if not parts:
+            return {'timestamp_ns': np.zeros(0, np.int64)}
+        return {k: v[0] if len(v) == 1 else np.concatenate(v) for k, v in parts.items()}
+
+    def iter_columns(self, topic: str, names: Iterable[str] | None = None,
+                     progress: Callable[[int, int], None] | None = None,
+                     chunk: int | None = None) -> Iterator[dict[str, np.ndarray]]:
+        """Yield ``topic`` as column dicts of up to ``chunk`` messages (default COLUMN_CHUNK).
+
+        The same columns, types and order in every chunk (see :meth:`columns`); a consumer
+        that handles one chunk at a time (CSV export) needs memory for one chunk only.
         """
         self.require(topic)
         msgtype = self.topics.get(self.name(topic))
+        size = chunk or COLUMN_CHUNK
         try:
             packer = _packer(msgtype, self.reader.typestore)
         except (BagError, KeyError):
@@ -861,44 +878,36 @@ class Bag:
             names = list(names)
             if 'stamp_s' in names:
                 names += ['header.stamp.sec', 'header.stamp.nanosec']
-        parts: dict[str, list[np.ndarray]] = {}
-        stamps: list[np.ndarray] = []
         chunk_ts: list[int] = []
-        chunk: list[bytes] = []
+        batch: list[bytes] = []
 
-        def flush() -> None:
+        def decode() -> dict[str, np.ndarray]:
             cols: dict[str, Any] = {}
             if packer is not None:
-                cols = packer.unpack(chunk, names)
+                cols = packer.unpack(batch, names)
             if not cols:  # strings in the messages: the general (slow) path for this chunk
-                slow = self._slow_columns(msgtype, chunk, names)
+                slow = self._slow_columns(msgtype, batch, names)
                 if packer is not None:  # the same columns, order and types as the fast path
                     slow = {k: slow[k] for k in packer._order if k in slow}
                 for k, v in slow.items():
-                    a = _to_array(v)
-                    if packer is not None and k in packer.fields and a.dtype != object:
-                        a = a.astype(packer.dtype[k])
-                    cols[k] = a
-            for k, v in cols.items():
-                parts.setdefault(k, []).append(v)
-            stamps.append(np.asarray(chunk_ts, dtype=np.int64))
-            chunk.clear()
+                    arr = _to_array(v)
+                    if packer is not None and k in packer.fields and arr.dtype != object:
+                        arr = arr.astype(packer.dtype[k])
+                    cols[k] = arr
+            out = {'timestamp_ns': np.asarray(chunk_ts, dtype=np.int64), **cols}
+            if 'header.stamp.sec' in out:
+                out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
+            batch.clear()
             chunk_ts.clear()
+            return out
 
         for ts, data in self.raw(topic, progress):
             chunk_ts.append(ts)
-            chunk.append(data)
-            if len(chunk) >= COLUMN_CHUNK:
-                flush()
-        if chunk:
-            flush()
-        out: dict[str, np.ndarray] = {
-            'timestamp_ns': np.concatenate(stamps) if stamps else np.zeros(0, np.int64)}
-        for k, v in parts.items():
-            out[k] = v[0] if len(v) == 1 else np.concatenate(v)
-        if 'header.stamp.sec' in out:
-            out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
-        return out
+            batch.append(data)
+            if len(batch) >= size:
+                yield decode()
+        if batch:
+            yield decode()
 
     def _slow_columns(self, msgtype: str, datas: list[bytes],
                       names: Iterable[str] | None) -> dict[str, list]:

@@ -12,7 +12,7 @@ import csv
 import os
 from pathlib import Path
 import shutil
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -39,9 +39,10 @@ def export_csv(bag_path: str | Path, out_dir: str | Path | None = None,
         try:
             names = []
             for topic in sorted(bag.topics):
-                cols = bag.columns(topic, progress=progress(topic) if progress else None)
                 name = topic_filename(topic)
-                _write(tmp / name, cols)
+                # one chunk of columns at a time: memory stays that of a chunk, at any length
+                _write(tmp / name, bag.iter_columns(
+                    topic, progress=progress(topic) if progress else None))
                 names.append(name)
             os.replace(tmp, out)
         except BaseException:
@@ -50,19 +51,24 @@ def export_csv(bag_path: str | Path, out_dir: str | Path | None = None,
     return [out / n for n in names]
 
 
-def _write(path: Path, cols: dict[str, np.ndarray]) -> None:
-    keys = list(cols)
-    n = len(cols['timestamp_ns'])
+def _write(path: Path, chunks: Iterable[dict[str, np.ndarray]]) -> None:
     with path.open('w', newline='', encoding='utf-8') as f:
         w = csv.writer(f)
-        w.writerow(keys)
-        columns = []
-        for k in keys:
-            c = cols[k]
-            if c.dtype == bool:
-                c = c.astype(np.int8)  # 0/1: spreadsheets and numpy read it back as numbers
-            if c.dtype.kind == 'f':
-                columns.append([repr(float(x)) for x in c])
-            else:
-                columns.append(c.tolist())
-        w.writerows(zip(*columns, strict=True) if n else [])
+        header = False
+        for cols in chunks:
+            keys = list(cols)
+            if not header:
+                w.writerow(keys)
+                header = True
+            columns = []
+            for k in keys:
+                c = cols[k]
+                if c.dtype == bool:
+                    c = c.astype(np.int8)  # 0/1: spreadsheets and numpy read it back as numbers
+                if c.dtype.kind == 'f':
+                    columns.append([repr(float(x)) for x in c])
+                else:
+                    columns.append(c.tolist())
+            w.writerows(zip(*columns, strict=True))
+        if not header:
+            w.writerow(['timestamp_ns'])
