@@ -56,11 +56,14 @@ class SimClock:
         return self.t
 
 
-_CHILD = ('import json, resource, sys\n'
+# The child's own peak RSS: VmHWM of its address space. (ru_maxrss is no good here: Linux
+# carries the parent's peak over fork into the child's figure, and the parent held the run.)
+_CHILD = ('import json, sys\n'
           'from ladrc_tools.cli import main\n'
           'rc = main(sys.argv[1:])\n'
-          'print(json.dumps({"rc": rc, "rss_kib": '
-          'resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}), file=sys.stderr)\n')
+          'hwm = [int(ln.split()[1]) for ln in open("/proc/self/status")'
+          ' if ln.startswith("VmHWM:")]\n'
+          'print(json.dumps({"rc": rc, "rss_kib": hwm[0] if hwm else None}), file=sys.stderr)\n')
 
 
 def _tool(args: list[str]) -> dict:
