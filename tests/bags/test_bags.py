@@ -352,3 +352,18 @@ def test_columns_stream_in_chunks_with_mixed_layouts(tmp_path, monkeypatch):
     assert chunked['fault_reason'][10] == 'fault 10' and chunked['fault_reason'][11] == ''
     assert set(some) == {'timestamp_ns', 'tick', 'header.stamp.sec', 'header.stamp.nanosec',
                          'stamp_s'}
+
+
+def test_read_topics_in_one_pass_equals_columns(run_bag):
+    _, path = run_bag
+    with open_bag(path) as b:
+        wanted = {'follow/status': ['tick', 'gap_mm', 'stamp_s'], 'sim/truth': None,
+                  'axis/feedback': ['seq'], 'no/such/topic': None}
+        data = b.read_topics(wanted)
+        assert set(data) == {'follow/status', 'sim/truth', 'axis/feedback'}
+        for topic in data:
+            one = b.columns(topic, wanted[topic])
+            assert data[topic].keys() == one.keys()
+            for k in one:
+                eq_nan = one[k].dtype.kind == 'f'
+                assert np.array_equal(data[topic][k], one[k], equal_nan=eq_nan), (topic, k)

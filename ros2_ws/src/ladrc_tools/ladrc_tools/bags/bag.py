@@ -868,46 +868,52 @@ class Bag:
         that handles one chunk at a time (CSV export) needs memory for one chunk only.
         """
         self.require(topic)
-        msgtype = self.topics.get(self.name(topic))
+        dec = _Decoder(self, topic, names)
         size = chunk or COLUMN_CHUNK
-        try:
-            packer = _packer(msgtype, self.reader.typestore)
-        except (BagError, KeyError):
-            packer = None
-        if names is not None:
-            names = list(names)
-            if 'stamp_s' in names:
-                names += ['header.stamp.sec', 'header.stamp.nanosec']
-        chunk_ts: list[int] = []
-        batch: list[bytes] = []
-
-        def decode() -> dict[str, np.ndarray]:
-            cols: dict[str, Any] = {}
-            if packer is not None:
-                cols = packer.unpack(batch, names)
-            if not cols:  # strings in the messages: the general (slow) path for this chunk
-                slow = self._slow_columns(msgtype, batch, names)
-                if packer is not None:  # the same columns, order and types as the fast path
-                    slow = {k: slow[k] for k in packer._order if k in slow}
-                for k, v in slow.items():
-                    arr = _to_array(v)
-                    if packer is not None and k in packer.fields and arr.dtype != object:
-                        arr = arr.astype(packer.dtype[k])
-                    cols[k] = arr
-            out = {'timestamp_ns': np.asarray(chunk_ts, dtype=np.int64), **cols}
-            if 'header.stamp.sec' in out:
-                out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
-            batch.clear()
-            chunk_ts.clear()
-            return out
-
         for ts, data in self.raw(topic, progress):
-            chunk_ts.append(ts)
-            batch.append(data)
-            if len(batch) >= size:
-                yield decode()
-        if batch:
-            yield decode()
+            if dec.add(ts, data) >= size:
+                yield dec.decode()
+        if dec.batch:
+            yield dec.decode()
+
+    def read_topics(self, wanted: Mapping[str, Iterable[str] | None],
+                    progress: Callable[[int, int], None] | None = None
+                    ) -> dict[str, dict[str, np.ndarray]]:
+        """Read several topics into columns in ONE pass over the bag (see :meth:`columns`).
+
+        ``wanted`` maps topic -> field names (None: all); topics the bag lacks are left out
+        of the result. A long bag is read once instead of once per topic.
+        """
+        topics = {self.name(t): t for t in wanted if self.has(t)}
+        decoders = {name: _Decoder(self, name, wanted[asked])
+                    for name, asked in topics.items()}
+        parts: dict[str, dict[str, list[np.ndarray]]] = {n: {} for n in decoders}
+
+        def flush(name: str) -> None:
+            for k, v in decoders[name].decode().items():
+                parts[name].setdefault(k, []).append(v)
+
+        conns = [c for c in self.reader.connections if c.topic in decoders]
+        total = sum(self.message_counts.get(n, 0) for n in decoders)
+        try:
+            for i, (conn, ts, data) in enumerate(self.reader.messages(connections=conns)):
+                if progress is not None and i % 20000 == 0:
+                    progress(i, total)
+                if decoders[conn.topic].add(ts, data) >= COLUMN_CHUNK:
+                    flush(conn.topic)
+        except Exception as exc:  # rosbags raises various errors on damaged storage
+            raise BagError(f'{self.path}: cannot read the bag: {_one_line(exc)}') from None
+        if progress is not None:
+            progress(total, total)
+        out = {}
+        for name, asked in topics.items():
+            if decoders[name].batch:
+                flush(name)
+            cols = parts[name]
+            out[asked] = ({k: v[0] if len(v) == 1 else np.concatenate(v)
+                           for k, v in cols.items()} if cols
+                          else {'timestamp_ns': np.zeros(0, np.int64)})
+        return out
 
     def _slow_columns(self, msgtype: str, datas: list[bytes],
                       names: Iterable[str] | None) -> dict[str, list]:
@@ -943,6 +949,53 @@ def _to_array(values: list) -> np.ndarray:
     out = np.empty(len(values), dtype=object)
     out[:] = values
     return out
+
+
+class _Decoder:
+    """Raw messages of one topic -> column dicts, a batch at a time (Bag.iter_columns)."""
+
+    def __init__(self, bag: Bag, topic: str, names: Iterable[str] | None) -> None:
+        self.bag = bag
+        self.msgtype = bag.topics.get(bag.name(topic))
+        try:
+            self.packer: RowPacker | None = _packer(self.msgtype, bag.reader.typestore)
+        except (BagError, KeyError):
+            self.packer = None
+        if names is not None:
+            names = list(names)
+            if 'stamp_s' in names:
+                names += ['header.stamp.sec', 'header.stamp.nanosec']
+        self.names = names
+        self.stamps: list[int] = []
+        self.batch: list[bytes] = []
+
+    def add(self, ts: int, data: bytes) -> int:
+        """Queue one message; return the batch length."""
+        self.stamps.append(ts)
+        self.batch.append(data)
+        return len(self.batch)
+
+    def decode(self) -> dict[str, np.ndarray]:
+        """Decode the queued batch (fast fixed-layout path, else the general one)."""
+        packer, batch, names = self.packer, self.batch, self.names
+        cols: dict[str, Any] = {}
+        if packer is not None:
+            cols = packer.unpack(batch, names)
+        if not cols:  # strings in the messages: the general (slow) path for this batch
+            slow = self.bag._slow_columns(self.msgtype, batch, names)
+            if packer is not None:  # the same columns, order and types as the fast path
+                slow = {k: slow[k] for k in packer._order if k in slow}
+            for k, v in slow.items():
+                arr = _to_array(v)
+                if packer is not None and k in packer.fields and arr.dtype != object:
+                    arr = arr.astype(packer.dtype[k])
+                cols[k] = arr
+        out = {'timestamp_ns': np.asarray(self.stamps, dtype=np.int64), **cols}
+        if 'header.stamp.sec' in out:
+            out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
+        self.batch = []
+        self.stamps = []
+        return out
 
 
 def _one_line(exc: BaseException) -> str:

@@ -20,7 +20,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
-from ..bags.bag import SEQ_FIELD, Bag, BagError, count_lost, open_bag, read_text_topic, seq_of
+from ..bags.bag import SEQ_FIELD, Bag, BagError, count_lost, open_bag, read_text_topic
 
 STATE_NAMES = ['IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT']
 LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
@@ -69,8 +69,12 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     from ladrc_sim.headless import metrics as M
 
     bag.require('follow/status')
-    prog = stderr_progress('follow/status') if progress else None
-    st = bag.columns('follow/status', REPORT_FIELDS, progress=prog)  # only what it uses
+    # one pass over the bag for everything the report reads (a long bag is read once)
+    wanted: dict[str, Any] = {t: [f] for t, f in SEQ_FIELD.items()}  # loss: the counters
+    wanted['follow/status'] = REPORT_FIELDS
+    wanted['sim/truth'] += ['stamp_s', 'true_gap_mm', 'collision']
+    data = bag.read_topics(wanted, progress=stderr_progress('bag') if progress else None)
+    st = data['follow/status']
     n_status = st['tick'].size if 'tick' in st else 0
     if n_status < 2:
         raise BagError(f'{bag.path}: follow/status holds {n_status} message(s); '
@@ -99,10 +103,8 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     gap = st['gap_mm'].astype(float)
     gap_source = 'measured (follow/status gap_mm)'
     collision = np.zeros(t.size, dtype=bool)
-    if bag.has('sim/truth') and bag.count('sim/truth') > 1:
-        tr = bag.columns('sim/truth', ['header.stamp.sec', 'header.stamp.nanosec',
-                                       'true_gap_mm', 'collision'],
-                         progress=stderr_progress('sim/truth') if progress else None)
+    if 'sim/truth' in data and data['sim/truth']['timestamp_ns'].size > 1:
+        tr = data['sim/truth']
         gap = np.interp(st['stamp_s'], tr['stamp_s'], tr['true_gap_mm'])
         idx = np.clip(np.searchsorted(tr['stamp_s'], st['stamp_s']), 0, tr['stamp_s'].size - 1)
         collision = tr['collision'][idx]
@@ -121,13 +123,9 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
                           v_max_mm_s=v_max or math.inf, a_max_mm_s2=math.inf,
                           internals=internals)
     lost: dict[str, int] = {}
-    for topic in SEQ_FIELD:
-        if bag.has(topic):
-            if topic == 'follow/status':
-                lost[topic] = count_lost(st['tick'].astype(np.int64))
-            else:
-                seq = np.fromiter((seq_of(d) for _, d in bag.raw(topic)), dtype=np.int64)
-                lost[topic] = count_lost(seq)
+    for topic, field in SEQ_FIELD.items():
+        if topic in data:
+            lost[topic] = count_lost(data[topic][field].astype(np.int64))
     recording = None
     rec_file = bag.path / 'recording.json' if bag.path.is_dir() else None
     if rec_file is not None and rec_file.is_file():
