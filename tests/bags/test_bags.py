@@ -367,3 +367,21 @@ def test_read_topics_in_one_pass_equals_columns(run_bag):
             for k in one:
                 eq_nan = one[k].dtype.kind == 'f'
                 assert np.array_equal(data[topic][k], one[k], equal_nan=eq_nan), (topic, k)
+
+
+def test_plot_envelope_keeps_every_extreme():
+    from ladrc_tools.offline.report import envelope
+
+    n = 200_000
+    t = np.arange(n) * 5e-4
+    y = np.sin(t)
+    y[123_457] = 9.0   # a one-sample spike must survive the decimation
+    y[150_001] = -7.0
+    y[10:20] = np.nan
+    out = envelope({'t_s': t, 'y': y}, buckets=1000)
+    assert out['t_s'].size == out['y'].size == 2000
+    assert np.nanmax(out['y']) == 9.0 and np.nanmin(out['y']) == -7.0
+    assert out['t_s'][0] == 0.0 and out['t_s'][-1] == t[-1]
+    assert np.all(np.diff(out['t_s']) >= 0)
+    short = {'t_s': t[:100], 'y': y[:100]}
+    assert envelope(short, buckets=1000) is short
