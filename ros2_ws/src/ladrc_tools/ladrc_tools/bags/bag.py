@@ -857,7 +857,7 @@ class Bag:
                 parts.setdefault(k, []).append(v)
         if not parts:
             return {'timestamp_ns': np.zeros(0, np.int64)}
-        return {k: v[0] if len(v) == 1 else np.concatenate(v) for k, v in parts.items()}
+        return _joined(parts)
 
     def iter_columns(self, topic: str, names: Iterable[str] | None = None,
                      progress: Callable[[int, int], None] | None = None,
@@ -909,10 +909,8 @@ class Bag:
         for name, asked in topics.items():
             if decoders[name].batch:
                 flush(name)
-            cols = parts[name]
-            out[asked] = ({k: v[0] if len(v) == 1 else np.concatenate(v)
-                           for k, v in cols.items()} if cols
-                          else {'timestamp_ns': np.zeros(0, np.int64)})
+            cols = parts.pop(name)
+            out[asked] = _joined(cols) if cols else {'timestamp_ns': np.zeros(0, np.int64)}
         return out
 
     def _slow_columns(self, msgtype: str, datas: list[bytes],
@@ -948,6 +946,15 @@ def _to_array(values: list) -> np.ndarray:
         return np.asarray(values)
     out = np.empty(len(values), dtype=object)
     out[:] = values
+    return out
+
+
+def _joined(parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
+    """Concatenate each column's chunks, releasing them column by column (peak memory)."""
+    out = {}
+    for k in list(parts):
+        v = parts.pop(k)
+        out[k] = v[0] if len(v) == 1 else np.concatenate(v)
     return out
 
 

@@ -448,8 +448,11 @@ def replay(rec: Recording, params: ControllerParams | None = None, *,
                                                   count=len(rows)))
     if j < n_ev:
         notes.append(f'{n_ev - j} event(s) after the last recorded tick not applied')
-    int_arrays = ({k: (np.concatenate(v) if v else np.zeros(0)) for k, v in int_parts.items()}
-                  if record_internals else {})
+    int_arrays = {}
+    if record_internals:
+        for k in list(int_parts):  # column by column: the batches are released as joined
+            v = int_parts.pop(k)
+            int_arrays[k] = np.concatenate(v) if v else np.zeros(0)
     wall = time.perf_counter() - wall0
     src = params_source or (rec.params_source if own else 'what-if')
     return ReplayResult(velocity=out_v, enable=out_en, internals=int_arrays,
