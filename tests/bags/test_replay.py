@@ -151,8 +151,8 @@ def test_own_replay_exits_1_on_mismatch(headless, tmp_path, capsys, monkeypatch)
 
     real = R.load_recording
 
-    def perturbed(p):
-        rec = real(p)
+    def perturbed(p, **kwargs):
+        rec = real(p, **kwargs)
         rec.inputs['encoder_mm'] = rec.inputs['encoder_mm'] + 1e-9
         return rec
     monkeypatch.setattr(R, 'load_recording', perturbed)

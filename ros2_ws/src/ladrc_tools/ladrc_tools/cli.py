@@ -50,7 +50,8 @@ def _run_export(a: argparse.Namespace) -> int:
     from .offline.export import export_csv
     from .offline.report import stderr_progress
 
-    files = export_csv(a.bag, a.output, progress=None if a.quiet else stderr_progress)
+    files = export_csv(a.bag, a.output, progress=None if a.quiet else (
+        lambda topic: stderr_progress(f'reading {topic}')))
     for f in files:
         print(f)
     return 0
@@ -223,7 +224,9 @@ def _run_replay(a: argparse.Namespace) -> int:
             out = Path(str(Path(a.bag)).rstrip('/') + '_whatif')
         if out is not None and out.exists():
             raise CliError(f'{out} exists already: outputs are never overwritten')
-        rec = load_recording(a.bag)
+        from .offline.report import stderr_progress
+
+        rec = load_recording(a.bag, progress=stderr_progress('reading follow/status'))
         if whatif:
             params = whatif_params(rec, a.params, overrides)
             source = ' + '.join(x for x in (
@@ -231,9 +234,10 @@ def _run_replay(a: argparse.Namespace) -> int:
                 ' '.join(f'--set {s}' for s in a.set),
                 f'--controller {a.controller}' if a.controller else '') if x)
             res = replay(rec, params, overrides=overrides or None, mode=a.controller,
-                         params_source=source)
+                         params_source=source, progress=stderr_progress('ticks (what-if)'))
         else:
-            res = replay(rec, record_internals=not a.no_internals)
+            res = replay(rec, record_internals=not a.no_internals,
+                         progress=stderr_progress('ticks (replay)'))
     except (ReplayError, ParameterError) as exc:
         raise CliError(' '.join(str(exc).split())) from None
     summary = compare(rec, res)

@@ -26,7 +26,7 @@ import os
 from pathlib import Path
 import shutil
 import time
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 from ladrc_follow.control.follow import INTERNALS_KEYS, FollowController, TickInput
 from ladrc_follow.control.params import (
@@ -175,11 +175,12 @@ def _first_text(bag: Bag, topic: str) -> str | None:
     return None
 
 
-def load_recording(path: str | Path) -> Recording:
+def load_recording(path: str | Path,
+                   progress: Callable[[int, int], None] | None = None) -> Recording:
     """Read what :func:`replay` needs from a bag; :class:`BagError` (one line) if unusable."""
     with open_bag(path) as bag:
         bag.require('follow/status')
-        st = bag.columns('follow/status', REPLAY_FIELDS)
+        st = bag.columns('follow/status', REPLAY_FIELDS, progress=progress)
         if st['tick'].size == 0:
             raise BagError(f'{bag.path}: follow/status holds no message: nothing to replay')
         notes: list[str] = []
@@ -352,7 +353,8 @@ def _delta(old: ControllerParams, new: ControllerParams) -> dict[str, Any]:
 # ---- replay -----------------------------------------------------------------------------------
 def replay(rec: Recording, params: ControllerParams | None = None, *,
            overrides: Mapping[str, Any] | None = None, mode: str | None = None,
-           record_internals: bool = True, params_source: str | None = None) -> ReplayResult:
+           record_internals: bool = True, params_source: str | None = None,
+           progress: Callable[[int, int], None] | None = None) -> ReplayResult:
     """Step a fresh controller over ``rec``'s inputs, re-applying its events at their ticks.
 
     ``params=None`` replays with the bag's own set (every recorded PARAMETERS event applied
@@ -442,6 +444,8 @@ def replay(rec: Recording, params: ControllerParams | None = None, *,
                 rows.append(internals())
         out_v[c0:c1] = chunk_v
         out_en[c0:c1] = chunk_en
+        if progress is not None:
+            progress(c1, n)
         if rows is not None:
             for key in COMPARED_INTERNALS:
                 int_parts[key].append(np.fromiter((r[key] for r in rows), dtype=float,

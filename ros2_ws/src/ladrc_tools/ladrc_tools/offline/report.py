@@ -28,15 +28,20 @@ LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
 
 
 def stderr_progress(label: str) -> Callable[[int, int], None]:
-    """Return a progress callback printing ``label NN%`` on stderr (one line, rewritten)."""
+    """Return a progress callback printing ``label NN%`` on stderr (one line, rewritten).
+
+    Only on a terminal: piped or logged, stderr carries nothing but the one line of an error.
+    """
     last = [-1]
 
     def show(done: int, total: int) -> None:
+        if not sys.stderr.isatty():
+            return
         pct = int(100 * done / total) if total else 100
         if pct != last[0]:
             last[0] = pct
             end = '\n' if pct >= 100 else ''
-            print(f'\rreading {label}: {pct:3d}%', end=end, file=sys.stderr, flush=True)
+            print(f'\r{label}: {pct:3d}%', end=end, file=sys.stderr, flush=True)
     return show
 
 
@@ -74,7 +79,8 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     wanted: dict[str, Any] = {t: [f] for t, f in SEQ_FIELD.items()}  # loss: the counters
     wanted['follow/status'] = REPORT_FIELDS
     wanted['sim/truth'] += ['stamp_s', 'true_gap_mm', 'collision']
-    data = bag.read_topics(wanted, progress=stderr_progress('bag') if progress else None)
+    data = bag.read_topics(wanted,
+                           progress=stderr_progress('reading the bag') if progress else None)
     st = data['follow/status']
     n_status = st['tick'].size if 'tick' in st else 0
     if n_status < 2:
