@@ -623,9 +623,9 @@ def main(argv: list[str] | None = None) -> int:
             stop_reason[0] = 'external shutdown'
         finally:
             # Zero velocity before anything goes down, however the loop ended.
-            for _ in range(3):
+            for i in range(3):
                 try:
-                    node.publish_zero(stop_reason[0])
+                    node.publish_zero(stop_reason[0], log=i == 0)
                 except Exception:  # noqa: BLE001 - the context may already be gone
                     break
         executor.shutdown()

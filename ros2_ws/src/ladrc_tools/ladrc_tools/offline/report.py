@@ -194,6 +194,16 @@ def envelope(series: dict[str, np.ndarray], buckets: int = PLOT_BUCKETS
     return out
 
 
+def _save(fig: Any, out: Path, name: str) -> str:
+    """Lay out, write and close one figure; return its file name."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
 def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> list[str]:
     import matplotlib
 
@@ -219,10 +229,7 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
     ax.set_ylabel('gap [mm]')
     ax.legend(loc='best', fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / 'gap.png', dpi=110)
-    plt.close(fig)
-    names.append('gap.png')
+    names.append(_save(fig, out, 'gap.png'))
 
     if 'true_gap_mm' in series:
         fig, axs = plt.subplots(3, 1, figsize=(11, 7), sharex=True)
@@ -236,10 +243,7 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
         for a in axs:
             a.legend(loc='best', fontsize=8)
             a.grid(alpha=0.3)
-        fig.tight_layout()
-        fig.savefig(out / 'eso.png', dpi=110)
-        plt.close(fig)
-        names.append('eso.png')
+        names.append(_save(fig, out, 'eso.png'))
 
     fig, ax = plt.subplots(figsize=(11, 4))
     ax.plot(t, series['u_unlimited_mm_s'], lw=0.5, label='unlimited')
@@ -253,10 +257,7 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
     ax.set_ylabel('velocity command [mm/s]')
     ax.legend(loc='best', fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / 'command.png', dpi=110)
-    plt.close(fig)
-    names.append('command.png')
+    names.append(_save(fig, out, 'command.png'))
 
     fig, ax = plt.subplots(figsize=(11, 2.8))
     ax.step(t, series['state'], where='post', lw=1, label='state')
@@ -267,10 +268,7 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
     ax.set_xlabel('t [s]')
     ax.legend(loc='upper right', fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / 'state.png', dpi=110)
-    plt.close(fig)
-    names.append('state.png')
+    names.append(_save(fig, out, 'state.png'))
     return names
 
 
