@@ -370,7 +370,7 @@ def test_read_topics_in_one_pass_equals_columns(run_bag):
 
 
 def test_plot_envelope_keeps_every_extreme():
-    from ladrc_tools.offline.report import envelope
+    from ladrc_tools.offline.envelope import envelope
 
     n = 200_000
     t = np.arange(n) * 5e-4

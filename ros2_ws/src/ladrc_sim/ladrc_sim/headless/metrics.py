@@ -66,16 +66,20 @@ def _first_target_index(target: np.ndarray) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
+def _inside_run(inside: np.ndarray, run0: int = 0) -> np.ndarray:
+    """Length of the run of consecutive True ending at each index (``run0`` carried in)."""
+    idx = np.arange(inside.size)
+    # distance to the last False; before the first one, the run carried in continues
+    last_false = np.maximum.accumulate(np.where(~inside, idx, -1 - run0))
+    return idx - last_false
+
+
 def followed_index(gap: np.ndarray, target: np.ndarray, h_s: float,
                    tol_mm: float = TOL_MM, hold_s: float = HOLD_S) -> int | None:
     """Index at which ``|gap - target| <= tol`` has first held for ``hold_s``; else None."""
-    inside = np.isfinite(target) & (np.abs(gap - target) <= tol_mm)
-    need = max(1, int(round(hold_s / h_s)))
-    # run length of consecutive True ending at each index: distance to the last False.
-    last_false = np.maximum.accumulate(np.where(~inside, np.arange(inside.size), -1))
-    run = np.arange(inside.size) - last_false
-    hit = np.flatnonzero(inside & (run > need))  # t - t_first_inside >= hold_s
-    return int(hit[0]) if hit.size else None
+    acc = MetricsAccumulator(h_s, tol_mm=tol_mm, hold_s=hold_s)
+    acc.add(np.arange(np.size(gap)) * h_s, gap, target)
+    return acc.followed_i
 
 
 def travel_ratio(nozzle_mm: np.ndarray, reading_mm: np.ndarray, min_travel_mm: float = 0.05
@@ -91,75 +95,36 @@ def travel_ratio(nozzle_mm: np.ndarray, reading_mm: np.ndarray, min_travel_mm: f
     return np.where(ok, d1 / np.where(ok, d0, 1.0), np.nan)
 
 
-def follow_errors(gap: np.ndarray, target: np.ndarray, start: int) -> tuple[float, float, float]:
-    """RMS, max |e| and peak-to-peak of ``gap - target`` from ``start`` on (target ticks)."""
-    e = (gap - target)[start:]
-    e = e[np.isfinite(e)]
-    if e.size == 0:
-        return math.nan, math.nan, math.nan
-    return (float(np.sqrt(np.mean(e * e))), float(np.max(np.abs(e))),
-            float(np.max(e) - np.min(e)))
-
-
-def last_step(gap: np.ndarray, target: np.ndarray) -> tuple[int, int, float] | None:
-    """``(start, end, step_mm)`` of the last target segment; None without a target."""
-    fin = np.isfinite(target)
-    if not fin.any():
-        return None
-    tt = np.where(fin, target, np.inf)
-    change = np.flatnonzero((tt[1:] != tt[:-1]) & fin[1:]) + 1
-    starts = ([0] if fin[0] else []) + change.tolist()
-    start = starts[-1]
-    end = start
-    while end < target.size and fin[end]:
-        end += 1
-    before = gap[start] if start == 0 or not fin[start - 1] else target[start - 1]
-    return start, end, float(target[start] - before)
-
-
 def settling_and_overshoot(gap: np.ndarray, target: np.ndarray, h_s: float,
                            tol_mm: float = TOL_MM) -> tuple[float, float, float]:
     """Settling time (s), overshoot (mm) and overshoot (%) of the last target change."""
-    seg = last_step(gap, target)
-    if seg is None:
-        return math.nan, math.nan, math.nan
-    start, end, step = seg
-    e = gap[start:end] - target[start:end]
-    out = np.flatnonzero(np.abs(e) > tol_mm)
-    if out.size == 0:
-        settle = 0.0
-    elif out[-1] == e.size - 1:
-        settle = math.nan  # still outside the band at the end of the segment
-    else:
-        settle = (out[-1] + 1) * h_s
-    if step == 0.0:
-        return settle, 0.0, 0.0
-    over = max(0.0, float(np.max(np.sign(step) * e)))
-    return settle, over, 100.0 * over / abs(step)
+    acc = MetricsAccumulator(h_s, tol_mm=tol_mm)
+    acc.add(np.arange(np.size(gap)) * h_s, gap, target)
+    return acc.settling()
 
 
 def itae(gap: np.ndarray, target: np.ndarray, h_s: float) -> float:
     """Integral of time-weighted absolute error over the target ticks (mm s^2)."""
-    i0 = _first_target_index(target)
-    if i0 is None:
-        return math.nan
-    e = gap[i0:] - target[i0:]
-    t = np.arange(e.size) * h_s
-    ok = np.isfinite(e)
-    return float(np.sum(t[ok] * np.abs(e[ok])) * h_s)
+    acc = MetricsAccumulator(h_s)
+    acc.add(np.arange(np.size(gap)) * h_s, gap, target)
+    return acc.itae()
 
 
-def count_rising(flag: np.ndarray) -> int:
-    """Count False -> True transitions (a flag already True at index 0 counts once)."""
+def count_rising(flag: np.ndarray, before: bool = False) -> int:
+    """Count False -> True transitions (``before``: the flag just before index 0)."""
     f = np.asarray(flag, dtype=bool)
     if f.size == 0:
         return 0
-    return int(f[0]) + int(np.count_nonzero(f[1:] & ~f[:-1]))
+    return int(f[0] and not before) + int(np.count_nonzero(f[1:] & ~f[:-1]))
 
 
 def limit_hits(command: np.ndarray, h_s: float, v_max_mm_s: float, a_max_mm_s2: float,
-               internals: Mapping[str, np.ndarray] | None = None) -> tuple[int, int]:
-    """Ticks at the velocity and at the acceleration limit (internals flags or by value)."""
+               internals: Mapping[str, np.ndarray] | None = None,
+               u_before: float = 0.0) -> tuple[int, int]:
+    """Ticks at the velocity and at the acceleration limit (internals flags or by value).
+
+    ``u_before``: the command just before index 0 (for the step of the first tick).
+    """
     internals = internals or {}
     if 'limit_flags' in internals:
         f = np.nan_to_num(np.asarray(internals['limit_flags'], dtype=float)).astype(np.int64)
@@ -175,9 +140,159 @@ def limit_hits(command: np.ndarray, h_s: float, v_max_mm_s: float, a_max_mm_s2: 
     if a_key is not None:
         na = int(np.count_nonzero(np.nan_to_num(internals[a_key])))
     else:
-        du = np.abs(np.diff(u, prepend=0.0))
+        du = np.abs(np.diff(u, prepend=u_before))
         na = int(np.count_nonzero(du >= a_max_mm_s2 * h_s * (1 - 1e-6)))
     return nv, na
+
+
+class MetricsAccumulator:
+    """The metrics of one run, fed in consecutive slices (:meth:`add`); memory is constant.
+
+    The one implementation behind :func:`compute_metrics` (one slice) and the report of an
+    hours-long bag (many slices): every quantity is a running sum, extreme or the state of
+    the current target segment, carried from slice to slice.
+    """
+
+    def __init__(self, h_s: float, *, v_max_mm_s: float = math.inf,
+                 a_max_mm_s2: float = math.inf, tol_mm: float = TOL_MM,
+                 hold_s: float = HOLD_S) -> None:
+        self.h_s, self.tol_mm = h_s, tol_mm
+        self.v_max_mm_s, self.a_max_mm_s2 = v_max_mm_s, a_max_mm_s2
+        self.need = max(1, int(round(hold_s / h_s)))
+        self.n = 0                          # ticks seen
+        self.first_i: int | None = None     # first target tick
+        self.first_t = math.nan
+        self.followed_i: int | None = None
+        self.followed_t = math.nan
+        self._run = 0                       # inside-band run at the end of the last slice
+        self._sq, self._count = 0.0, 0      # error sums from the followed tick on
+        self._emax = self._ehi = self._elo = -math.inf
+        self._itae = 0.0
+        self._prev_tt = math.inf            # target of the last tick (inf: none)
+        self._seg: dict | None = None       # the last target segment (settling, overshoot)
+        self._collision_before = False
+        self._collisions = 0
+        self._nv = self._na = 0
+        self._u_before = 0.0
+
+    def add(self, t_s: np.ndarray, gap: np.ndarray, target: np.ndarray,
+            collision: np.ndarray | None = None, command_mm_s: np.ndarray | None = None,
+            internals: Mapping[str, np.ndarray] | None = None) -> None:
+        """Feed the next slice of the run's series (the arguments of compute_metrics)."""
+        gap = np.asarray(gap, dtype=float)
+        target = np.asarray(target, dtype=float)
+        base, n = self.n, gap.size
+        if n == 0:
+            return
+        fin = np.isfinite(target)
+        if self.first_i is None and fin.any():
+            i = int(np.argmax(fin))
+            self.first_i, self.first_t = base + i, float(t_s[i])
+        # followed: |e| <= tol held for hold_s (a run of more than `need` ticks)
+        inside = fin & (np.abs(gap - target) <= self.tol_mm)
+        run = _inside_run(inside, self._run)
+        self._run = int(run[-1])
+        start = None
+        if self.followed_i is None:
+            hit = np.flatnonzero(inside & (run > self.need))
+            if hit.size:
+                start = int(hit[0])
+                self.followed_i, self.followed_t = base + start, float(t_s[start])
+        else:
+            start = 0
+        if start is not None:  # error figures from the followed tick on
+            e = (gap - target)[start:]
+            e = e[np.isfinite(e)]
+            if e.size:
+                self._sq += float(np.sum(e * e))
+                self._count += e.size
+                self._emax = max(self._emax, float(np.max(np.abs(e))))
+                self._ehi = max(self._ehi, float(np.max(e)))
+                self._elo = max(self._elo, float(-np.min(e)))
+        if self.first_i is not None:  # ITAE from the first target tick
+            i0 = max(0, self.first_i - base)
+            e = gap[i0:] - target[i0:]
+            t = (np.arange(e.size) + (base + i0 - self.first_i)) * self.h_s
+            ok = np.isfinite(e)
+            self._itae += float(np.sum(t[ok] * np.abs(e[ok])))
+        self._segments(gap, target, fin)
+        if collision is not None:
+            self._collisions += count_rising(collision, self._collision_before)
+            self._collision_before = bool(np.asarray(collision)[-1])
+        if command_mm_s is not None:
+            nv, na = limit_hits(command_mm_s, self.h_s, self.v_max_mm_s, self.a_max_mm_s2,
+                                internals, self._u_before)
+            self._nv += nv
+            self._na += na
+            self._u_before = float(np.asarray(command_mm_s, dtype=float)[-1])
+        self.n += n
+
+    def _segments(self, gap: np.ndarray, target: np.ndarray, fin: np.ndarray) -> None:
+        """Track the last target segment: a new target value, or a target after none."""
+        tt = np.where(fin, target, np.inf)
+        prev = np.concatenate(([self._prev_tt], tt[:-1]))
+        starts = np.flatnonzero((tt != prev) & fin)
+        a = 0
+        if starts.size:
+            a = int(starts[-1])
+            before = gap[a] if prev[a] == np.inf else prev[a]
+            self._seg = {'step': float(target[a] - before), 'len': 0, 'last_out': -1,
+                         'over': -math.inf, 'open': True}
+        self._prev_tt = float(tt[-1])
+        seg = self._seg
+        if seg is None or not seg['open']:
+            return
+        gone = np.flatnonzero(~fin[a:])
+        b = a + int(gone[0]) if gone.size else gap.size
+        if gone.size:
+            seg['open'] = False
+        e = gap[a:b] - target[a:b]
+        out = np.flatnonzero(np.abs(e) > self.tol_mm)
+        if out.size:
+            seg['last_out'] = seg['len'] + int(out[-1])
+        seg['len'] += e.size
+        if e.size:
+            seg['over'] = float(np.maximum(seg['over'], np.max(np.sign(seg['step']) * e)))
+
+    def settling(self) -> tuple[float, float, float]:
+        """Settling time (s), overshoot (mm, %) of the last target change (module doc)."""
+        seg = self._seg
+        if seg is None:
+            return math.nan, math.nan, math.nan
+        if seg['last_out'] < 0:
+            settle = 0.0
+        elif seg['last_out'] == seg['len'] - 1:
+            settle = math.nan  # still outside the band at the end of the segment
+        else:
+            settle = (seg['last_out'] + 1) * self.h_s
+        step = seg['step']
+        if step == 0.0:
+            return settle, 0.0, 0.0
+        over = max(0.0, seg['over'])
+        return settle, over, 100.0 * over / abs(step)
+
+    def itae(self) -> float:
+        """ITAE so far (mm s^2); NaN before the first target tick."""
+        return math.nan if self.first_i is None else self._itae * self.h_s
+
+    def result(self) -> Metrics:
+        """Return the metrics of everything fed so far."""
+        if self.followed_i is None or self.first_i is None or self._count == 0:
+            followed_at = ttf = rms = emax = p2p = math.nan
+            if self.followed_i is not None and self.first_i is not None:
+                followed_at = self.followed_t
+                ttf = self.followed_t - self.first_t
+        else:
+            followed_at = self.followed_t
+            ttf = self.followed_t - self.first_t
+            rms = math.sqrt(self._sq / self._count)
+            emax, p2p = self._emax, self._ehi + self._elo
+        settle, over, over_pct = self.settling()
+        return Metrics(followed_at_s=followed_at, time_to_follow_s=ttf, error_rms_mm=rms,
+                       error_max_mm=emax, error_p2p_mm=p2p, settling_time_s=settle,
+                       overshoot_mm=over, overshoot_pct=over_pct, itae_mm_s2=self.itae(),
+                       collisions=self._collisions, limit_v_ticks=self._nv,
+                       limit_a_ticks=self._na)
 
 
 def compute_metrics(t_s: np.ndarray, true_gap_mm: np.ndarray, target_gap_mm: np.ndarray,
@@ -186,21 +301,7 @@ def compute_metrics(t_s: np.ndarray, true_gap_mm: np.ndarray, target_gap_mm: np.
                     internals: Mapping[str, np.ndarray] | None = None,
                     tol_mm: float = TOL_MM, hold_s: float = HOLD_S) -> Metrics:
     """All metrics of one run from its series (see the module docstring)."""
-    gap = np.asarray(true_gap_mm, dtype=float)
-    target = np.asarray(target_gap_mm, dtype=float)
-    i0 = _first_target_index(target)
-    fi = followed_index(gap, target, h_s, tol_mm, hold_s)
-    if fi is None or i0 is None:
-        followed_at = ttf = math.nan
-        rms = emax = p2p = math.nan
-    else:
-        followed_at = float(t_s[fi])
-        ttf = float(t_s[fi] - t_s[i0])
-        rms, emax, p2p = follow_errors(gap, target, fi)
-    settle, over, over_pct = settling_and_overshoot(gap, target, h_s, tol_mm)
-    nv, na = limit_hits(command_mm_s, h_s, v_max_mm_s, a_max_mm_s2, internals)
-    return Metrics(followed_at_s=followed_at, time_to_follow_s=ttf, error_rms_mm=rms,
-                   error_max_mm=emax, error_p2p_mm=p2p, settling_time_s=settle,
-                   overshoot_mm=over, overshoot_pct=over_pct,
-                   itae_mm_s2=itae(gap, target, h_s), collisions=count_rising(collision),
-                   limit_v_ticks=nv, limit_a_ticks=na)
+    acc = MetricsAccumulator(h_s, v_max_mm_s=v_max_mm_s, a_max_mm_s2=a_max_mm_s2,
+                             tol_mm=tol_mm, hold_s=hold_s)
+    acc.add(t_s, true_gap_mm, target_gap_mm, collision, command_mm_s, internals)
+    return acc.result()

@@ -50,6 +50,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 import yaml
 
 from .mcap_file import McapFileWriter, McapScan, is_complete
+from .mcap_index import ChannelRows, McapIndex, open_index
 from .typestore import ladrc_typestore
 
 BAG_VERSION = 9  # rosbag2 metadata version written by Jazzy
@@ -464,7 +465,15 @@ class RowPacker:
         size = self.dtype.itemsize
         if any(len(d) != size for d in datas):
             return {}
-        arr = np.frombuffer(b''.join(datas), dtype=self.dtype)
+        return self.unpack_rows(np.frombuffer(b''.join(datas), dtype=np.uint8).reshape(
+            len(datas), size), names)
+
+    def unpack_rows(self, rows: np.ndarray,
+                    names: Iterable[str] | None = None) -> dict[str, Any]:
+        """Columns of an ``(n, size)`` uint8 array of messages; ``{}`` as :meth:`unpack`."""
+        if rows.ndim != 2 or rows.shape[1] != self.dtype.itemsize:
+            return {}
+        arr = np.ascontiguousarray(rows).view(self.dtype)[:, 0]
         # same length is not enough: a short string can hide in alignment padding
         if any(np.any(arr[f'~len.{k}'] != 1) for k in self.strings):
             return {}
@@ -780,12 +789,17 @@ class Bag:
             if alias not in self.topics:
                 self._alias[alias] = name
         custom: dict[str, str] = {}
+        self._storage = ''
+        self._files: list[Path] = []
         meta = path / 'metadata.yaml'
         if meta.is_file():
             try:
                 info = yaml.safe_load(meta.read_text(encoding='utf-8'))
-                custom = dict(info['rosbag2_bagfile_information'].get('custom_data') or {})
-            except (yaml.YAMLError, KeyError, TypeError, ValueError):
+                info = info['rosbag2_bagfile_information']
+                custom = dict(info.get('custom_data') or {})
+                self._storage = str(info.get('storage_identifier', ''))
+                self._files = [path / str(f) for f in info.get('relative_file_paths') or []]
+            except (yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
                 custom = {}
         self.custom_data = custom
 
@@ -862,19 +876,15 @@ class Bag:
     def iter_columns(self, topic: str, names: Iterable[str] | None = None,
                      progress: Callable[[int, int], None] | None = None,
                      chunk: int | None = None) -> Iterator[dict[str, np.ndarray]]:
-        """Yield ``topic`` as column dicts of up to ``chunk`` messages (default COLUMN_CHUNK).
+        """Yield ``topic`` as column dicts of about ``chunk`` messages (default COLUMN_CHUNK).
 
         The same columns, types and order in every chunk (see :meth:`columns`); a consumer
         that handles one chunk at a time (CSV export) needs memory for one chunk only.
         """
         self.require(topic)
-        dec = _Decoder(self, topic, names)
-        size = chunk or COLUMN_CHUNK
-        for ts, data in self.raw(topic, progress):
-            if dec.add(ts, data) >= size:
-                yield dec.decode()
-        if dec.batch:
-            yield dec.decode()
+        for part in self.stream({topic: names}, progress, chunk):
+            if topic in part:
+                yield part[topic]
 
     def read_topics(self, wanted: Mapping[str, Iterable[str] | None],
                     progress: Callable[[int, int], None] | None = None
@@ -884,33 +894,86 @@ class Bag:
         ``wanted`` maps topic -> field names (None: all); topics the bag lacks are left out
         of the result. A long bag is read once instead of once per topic.
         """
-        topics = {self.name(t): t for t in wanted if self.has(t)}
-        decoders = {name: _Decoder(self, name, wanted[asked])
-                    for name, asked in topics.items()}
-        parts: dict[str, dict[str, list[np.ndarray]]] = {n: {} for n in decoders}
+        parts: dict[str, dict[str, list[np.ndarray]]] = {t: {} for t in wanted if self.has(t)}
+        for part in self.stream(wanted, progress):
+            for topic, cols in part.items():
+                for k, v in cols.items():
+                    parts[topic].setdefault(k, []).append(v)
+        return {t: _joined(cols) if cols else {'timestamp_ns': np.zeros(0, np.int64)}
+                for t, cols in parts.items()}
 
-        def flush(name: str) -> None:
-            for k, v in decoders[name].decode().items():
-                parts[name].setdefault(k, []).append(v)
+    def stream(self, wanted: Mapping[str, Iterable[str] | None],
+               progress: Callable[[int, int], None] | None = None,
+               chunk: int | None = None) -> Iterator[dict[str, dict[str, np.ndarray]]]:
+        """Yield the bag in time slices: ``{topic: columns}`` of about ``chunk`` messages.
 
-        conns = [c for c in self.reader.connections if c.topic in decoders]
-        total = sum(self.message_counts.get(n, 0) for n in decoders)
+        ONE pass over the bag for all of ``wanted`` (topic -> field names, None: all; topics
+        the bag lacks are left out). Each slice holds the messages of consecutive bag time,
+        every topic's columns as :meth:`columns` builds them (a topic with no message in a
+        slice is absent from it), so a consumer that joins topics by time (the report, the
+        replay) holds one slice at a time. Finished MCAP files are read through their
+        message indexes (:mod:`.mcap_index`), others message by message.
+        """
+        names = {self.name(t): t for t in wanted if self.has(t)}
+        decoders = {n: _Decoder(self, n, wanted[asked]) for n, asked in names.items()}
+        size = chunk or COLUMN_CHUNK
+        pending = 0
+
+        def slice_() -> dict[str, dict[str, np.ndarray]]:
+            return {names[n]: d.decode() for n, d in decoders.items() if d.n}
+
+        indexes = self._indexes() if decoders else None
         try:
-            for i, (conn, ts, data) in enumerate(self.reader.messages(connections=conns)):
-                if progress is not None and i % 20000 == 0:
-                    progress(i, total)
-                if decoders[conn.topic].add(ts, data) >= COLUMN_CHUNK:
-                    flush(conn.topic)
-        except Exception as exc:  # rosbags raises various errors on damaged storage
+            if indexes is not None:
+                total = sum(ix.bytes_total for ix in indexes)
+                done = 0
+                for ix in indexes:
+                    ids = {ix.channels[n].channel_id: n for n in decoders if n in ix.channels}
+                    for nbytes, rows in ix.read(set(ids)):
+                        done += nbytes
+                        for cid, r in rows.items():
+                            decoders[ids[cid]].add_rows(r)
+                            pending += len(r.log_time_ns)
+                        if pending >= size:
+                            yield slice_()
+                            pending = 0
+                            if progress is not None:
+                                progress(done, total)
+            else:
+                conns = [c for c in self.reader.connections if c.topic in decoders]
+                total = sum(self.message_counts.get(n, 0) for n in decoders)
+                for i, (conn, ts, data) in enumerate(self.reader.messages(connections=conns)):
+                    decoders[conn.topic].add(ts, data)
+                    pending += 1
+                    if pending >= size:
+                        yield slice_()
+                        pending = 0
+                        if progress is not None:
+                            progress(i, total)
+        except BagError:
+            raise
+        except Exception as exc:  # rosbags, mcap and numpy raise various errors on damage
             raise BagError(f'{self.path}: cannot read the bag: {_one_line(exc)}') from None
+        finally:
+            for ix in indexes or ():
+                ix.close()
+        if pending:
+            yield slice_()
         if progress is not None:
-            progress(total, total)
-        out = {}
-        for name, asked in topics.items():
-            if decoders[name].batch:
-                flush(name)
-            cols = parts.pop(name)
-            out[asked] = _joined(cols) if cols else {'timestamp_ns': np.zeros(0, np.int64)}
+            progress(1, 1)
+
+    def _indexes(self) -> list[McapIndex] | None:
+        """Open the bag's MCAP files for indexed reading; None if one cannot be."""
+        if not isinstance(self.reader, AnyReader) or self._storage != 'mcap' or not self._files:
+            return None
+        out: list[McapIndex] = []
+        for f in self._files:
+            ix = open_index(f)
+            if ix is None:
+                for o in out:
+                    o.close()
+                return None
+            out.append(ix)
         return out
 
     def _slow_columns(self, msgtype: str, datas: list[bytes],
@@ -959,7 +1022,11 @@ def _joined(parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
 
 
 class _Decoder:
-    """Raw messages of one topic -> column dicts, a batch at a time (Bag.iter_columns)."""
+    """Messages of one topic -> column dicts, a batch at a time (:meth:`Bag.stream`).
+
+    Messages come one by one (:meth:`add`, CDR bytes) or a chunk's rows at a time
+    (:meth:`add_rows`, from :mod:`.mcap_index`).
+    """
 
     def __init__(self, bag: Bag, topic: str, names: Iterable[str] | None) -> None:
         self.bag = bag
@@ -973,23 +1040,45 @@ class _Decoder:
             if 'stamp_s' in names:
                 names += ['header.stamp.sec', 'header.stamp.nanosec']
         self.names = names
+        self.parts: list[tuple[np.ndarray, np.ndarray | list[bytes]]] = []
         self.stamps: list[int] = []
         self.batch: list[bytes] = []
+        self.n = 0
 
     def add(self, ts: int, data: bytes) -> int:
-        """Queue one message; return the batch length."""
+        """Queue one message; return the number queued."""
         self.stamps.append(ts)
         self.batch.append(data)
-        return len(self.batch)
+        self.n += 1
+        return self.n
+
+    def add_rows(self, rows: ChannelRows) -> int:
+        """Queue one chunk's messages of this topic; return the number queued."""
+        self._close_batch()
+        self.parts.append((rows.log_time_ns, rows.rows))
+        self.n += len(rows.log_time_ns)
+        return self.n
+
+    def _close_batch(self) -> None:
+        if self.batch:
+            self.parts.append((np.asarray(self.stamps, dtype=np.int64), self.batch))
+            self.stamps, self.batch = [], []
 
     def decode(self) -> dict[str, np.ndarray]:
-        """Decode the queued batch (fast fixed-layout path, else the general one)."""
-        packer, batch, names = self.packer, self.batch, self.names
+        """Decode what is queued (fast fixed-layout path, else the general one)."""
+        self._close_batch()
+        parts, self.parts, self.n = self.parts, [], 0
+        packer, names = self.packer, self.names
+        stamps = (np.concatenate([p[0] for p in parts]) if len(parts) != 1 else parts[0][0])
         cols: dict[str, Any] = {}
-        if packer is not None:
-            cols = packer.unpack(batch, names)
+        arrays = [p[1] for p in parts if isinstance(p[1], np.ndarray)]
+        if packer is not None and len(arrays) == len(parts):
+            cols = packer.unpack_rows(arrays[0] if len(arrays) == 1 else np.concatenate(arrays),
+                                      names)
+        elif packer is not None:
+            cols = packer.unpack(_as_bytes(parts), names)
         if not cols:  # strings in the messages: the general (slow) path for this batch
-            slow = self.bag._slow_columns(self.msgtype, batch, names)
+            slow = self.bag._slow_columns(self.msgtype, _as_bytes(parts), names)
             if packer is not None:  # the same columns, order and types as the fast path
                 slow = {k: slow[k] for k in packer._order if k in slow}
             for k, v in slow.items():
@@ -997,12 +1086,17 @@ class _Decoder:
                 if packer is not None and k in packer.fields and arr.dtype != object:
                     arr = arr.astype(packer.dtype[k])
                 cols[k] = arr
-        out = {'timestamp_ns': np.asarray(self.stamps, dtype=np.int64), **cols}
+        out = {'timestamp_ns': np.asarray(stamps, dtype=np.int64), **cols}
         if 'header.stamp.sec' in out:
             out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
-        self.batch = []
-        self.stamps = []
         return out
+
+
+def _as_bytes(parts: list[tuple[np.ndarray, np.ndarray | list[bytes]]]) -> list[bytes]:
+    out: list[bytes] = []
+    for _, rows in parts:
+        out.extend(r.tobytes() for r in rows) if isinstance(rows, np.ndarray) else out.extend(rows)
+    return out
 
 
 def _one_line(exc: BaseException) -> str:

@@ -16,12 +16,13 @@ from pathlib import Path
 import shutil
 import sys
 from typing import Any, Callable
-import warnings
 
 import numpy as np
 import yaml
 
 from ..bags.bag import SEQ_FIELD, Bag, BagError, count_lost, open_bag, read_text_topic
+from .envelope import Envelope
+from .quantiles import Quantiles
 
 STATE_NAMES = ['IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT']
 LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
@@ -56,83 +57,158 @@ def _find_key(data: Any, key: str) -> float | None:
     return None
 
 
-def _stats(x: np.ndarray) -> dict[str, float]:
-    x = x[np.isfinite(x)]
-    if x.size == 0:
-        return {'p50': math.nan, 'p99': math.nan, 'max': math.nan}
-    return {'p50': float(np.percentile(x, 50)), 'p99': float(np.percentile(x, 99)),
-            'max': float(np.max(x))}
-
-
 REPORT_FIELDS = ('tick', 'stamp_s', 'state', 'target_gap_mm', 'td_x1_mm', 'followed',
                  'velocity_mm_s', 'u_unlimited_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3',
                  'gap_mm', 'limit_flags', 'period_us', 'compute_us', 'input_age_us', 'overrun')
-"""The follow/status fields the report reads (a long bag is read into these columns only)."""
+"""The follow/status fields the report reads."""
+TIMING = ('period_us', 'compute_us', 'input_age_us')
+
+
+class _TruthJoin:
+    """``sim/truth`` interpolated onto the status stamps, a slice at a time.
+
+    Status rows wait until truth has been read past their stamp (or the bag ends); the truth
+    kept is what the waiting rows can still need (from the sample before them on), so the
+    result is that of ``np.interp`` / ``searchsorted`` over the whole run.
+    """
+
+    def __init__(self) -> None:
+        self.t = np.zeros(0)
+        self.gap = np.zeros(0)
+        self.collision = np.zeros(0, dtype=bool)
+
+    def add(self, tr: dict[str, np.ndarray]) -> None:
+        self.t = np.concatenate((self.t, tr['stamp_s']))
+        self.gap = np.concatenate((self.gap, tr['true_gap_mm']))
+        self.collision = np.concatenate((self.collision, tr['collision'].astype(bool)))
+
+    def ready(self, stamp_s: np.ndarray, final: bool) -> int:
+        """How many of the waiting rows (stamps ``stamp_s``) can be joined now."""
+        if final or self.t.size == 0:
+            return stamp_s.size if final else 0
+        return int(np.searchsorted(stamp_s, self.t[-1], 'right'))
+
+    def join(self, stamp_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        gap = np.interp(stamp_s, self.t, self.gap)
+        idx = np.clip(np.searchsorted(self.t, stamp_s), 0, self.t.size - 1)
+        collision = self.collision[idx]
+        if stamp_s.size:  # keep from the sample before the last joined stamp on
+            k = max(0, int(np.searchsorted(self.t, stamp_s[-1])) - 1)
+            self.t, self.gap, self.collision = self.t[k:], self.gap[k:], self.collision[k:]
+        return gap, collision
 
 
 def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``)."""
+    """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``).
+
+    ONE pass over the bag in time slices (:meth:`Bag.stream`); memory is that of a slice plus
+    the accumulators (metrics, timing quantiles, plot envelope), whatever the bag's length.
+    The plot series come back decimated (:mod:`.envelope`).
+    """
     from ladrc_sim.headless import metrics as M
 
     bag.require('follow/status')
-    # one pass over the bag for everything the report reads (a long bag is read once)
-    wanted: dict[str, Any] = {t: [f] for t, f in SEQ_FIELD.items()}  # loss: the counters
-    wanted['follow/status'] = REPORT_FIELDS
-    wanted['sim/truth'] += ['stamp_s', 'true_gap_mm', 'collision']
-    data = bag.read_topics(wanted,
-                           progress=stderr_progress('reading the bag') if progress else None)
-    st = data['follow/status']
-    n_status = st['tick'].size if 'tick' in st else 0
+    n_status = bag.count('follow/status')
     if n_status < 2:
         raise BagError(f'{bag.path}: follow/status holds {n_status} message(s); '
                        'a report needs a run')
-    t = st['stamp_s'] - st['stamp_s'][0]
-    h_s = float(np.median(np.diff(st['stamp_s'])))
-    state = st['state'].astype(int)
-    target = st['target_gap_mm'].astype(float)
-    if np.any(state != 0):  # a controller that reports its state: no target while IDLE
-        target = np.where(state != 0, target, np.nan)
-    # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold zeros,
-    # which would squash the plots' scales.
-    active = np.isin(state, (3, 4)) if np.any(state != 0) else np.ones(state.size, bool)
-
-    def when_active(col: str) -> np.ndarray:
-        return np.where(active, st[col].astype(float), np.nan)
-
-    series: dict[str, np.ndarray] = {'t_s': t, 'gap_mm': st['gap_mm'], 'target_mm': target,
-                                     'td_x1_mm': when_active('td_x1_mm'), 'state': state,
-                                     'followed': st['followed'],
-                                     'velocity_mm_s': st['velocity_mm_s'],
-                                     'u_unlimited_mm_s': st['u_unlimited_mm_s'],
-                                     'eso_z1_mm': when_active('eso_z1_mm'),
-                                     'eso_z2': when_active('eso_z2'),
-                                     'eso_z3': when_active('eso_z3')}
-    gap = st['gap_mm'].astype(float)
-    gap_source = 'measured (follow/status gap_mm)'
-    collision = np.zeros(t.size, dtype=bool)
-    if 'sim/truth' in data and data['sim/truth']['timestamp_ns'].size > 1:
-        tr = data['sim/truth']
-        gap = np.interp(st['stamp_s'], tr['stamp_s'], tr['true_gap_mm'])
-        idx = np.clip(np.searchsorted(tr['stamp_s'], st['stamp_s']), 0, tr['stamp_s'].size - 1)
-        collision = tr['collision'][idx]
-        series['true_gap_mm'] = gap
-        gap_source = 'true (sim/truth)'
     params_text = read_text_topic(bag, 'run/parameters') or ''
     try:
         params = yaml.safe_load(params_text) if params_text else None
     except yaml.YAMLError:
         params = None
     v_max = _find_key(params, 'v_max_mm_s')
-    flags = st['limit_flags'].astype(np.int64)
-    internals = {'limit_v': (flags & LIMIT_VELOCITY) != 0,
-                 'limit_a': (flags & LIMIT_ACCELERATION) != 0}
-    m = M.compute_metrics(t, gap, target, collision, st['velocity_mm_s'], h_s=h_s,
-                          v_max_mm_s=v_max or math.inf, a_max_mm_s2=math.inf,
-                          internals=internals)
-    lost: dict[str, int] = {}
-    for topic, field in SEQ_FIELD.items():
-        if topic in data:
-            lost[topic] = count_lost(data[topic][field].astype(np.int64))
+    wanted: dict[str, Any] = {t: [f] for t, f in SEQ_FIELD.items()}  # loss: the counters
+    wanted['follow/status'] = REPORT_FIELDS
+    wanted['sim/truth'] = ['stamp_s', 'true_gap_mm', 'collision', 'seq']
+    truth = _TruthJoin() if bag.count('sim/truth') > 1 else None
+    env = Envelope(n_status)
+    timing = {k: Quantiles() for k in TIMING}
+    last_seq: dict[str, int] = {}
+    lost = {t: 0 for t in SEQ_FIELD if bag.has(t)}
+    state_seen = [False]
+    pending: dict[str, np.ndarray] = {}
+    acc: list[M.MetricsAccumulator] = []
+    first: dict[str, float] = {}
+    overruns = [0]
+    n_done = [0]
+    prev_rate = [math.nan, math.nan]  # last (t, true gap) for the gap rate across slices
+
+    def process(st: dict[str, np.ndarray]) -> None:
+        if not acc:  # the period: median tick spacing of the first rows
+            first['stamp_s'] = float(st['stamp_s'][0])
+            first['h_s'] = float(np.median(np.diff(st['stamp_s'])))
+            acc.append(M.MetricsAccumulator(first['h_s'], v_max_mm_s=v_max or math.inf))
+        t = st['stamp_s'] - first['stamp_s']
+        state = st['state'].astype(int)
+        state_seen[0] |= bool(np.any(state != 0))
+        target = st['target_gap_mm'].astype(float)
+        if state_seen[0]:  # a controller that reports its state: no target while IDLE
+            target = np.where(state != 0, target, np.nan)
+        # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold
+        # zeros, which would squash the plots' scales.
+        active = np.isin(state, (3, 4)) if state_seen[0] else np.ones(state.size, bool)
+        series = {'t_s': t, 'gap_mm': st['gap_mm'], 'target_mm': target, 'state': state,
+                  'followed': st['followed'], 'velocity_mm_s': st['velocity_mm_s'],
+                  'u_unlimited_mm_s': st['u_unlimited_mm_s']}
+        for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3'):
+            series[col] = np.where(active, st[col].astype(float), np.nan)
+        gap = st['gap_mm'].astype(float)
+        collision = np.zeros(t.size, dtype=bool)
+        if truth is not None:
+            gap, collision = truth.join(st['stamp_s'])
+            series['true_gap_mm'] = gap
+            if n_done[0]:  # central differences across the slice boundary
+                rate = np.gradient(np.r_[prev_rate[1], gap], np.r_[prev_rate[0], t])[1:]
+            else:
+                rate = np.gradient(gap, t) if t.size > 1 else np.zeros(t.size)
+            series['true_gap_rate'] = rate
+            prev_rate[:] = [float(t[-1]), float(gap[-1])]
+        flags = st['limit_flags'].astype(np.int64)
+        acc[0].add(t, gap, target, collision, st['velocity_mm_s'],
+                   {'limit_v': (flags & LIMIT_VELOCITY) != 0,
+                    'limit_a': (flags & LIMIT_ACCELERATION) != 0})
+        for k in TIMING:
+            timing[k].add(st[k])
+        overruns[0] += int(np.count_nonzero(st['overrun']))
+        env.add(series)
+        n_done[0] += t.size
+
+    def flush(final: bool) -> None:
+        if not pending or pending['tick'].size == 0:
+            return
+        k = (pending['tick'].size if truth is None
+             else truth.ready(pending['stamp_s'], final))
+        if not acc and k < 2 and not final:
+            return  # the period needs two rows
+        if k:
+            process({c: v[:k] for c, v in pending.items()})
+            for c in list(pending):
+                pending[c] = pending[c][k:]
+
+    show = stderr_progress('reading the bag') if progress else None
+    for part in bag.stream(wanted, progress=show):
+        for topic, cols in part.items():
+            if topic in SEQ_FIELD:
+                seq = cols[SEQ_FIELD[topic]].astype(np.int64)
+                if topic in last_seq:
+                    seq = np.r_[last_seq[topic], seq]
+                lost[topic] += count_lost(seq)
+                if seq.size:
+                    last_seq[topic] = int(seq[-1])
+        if truth is not None and 'sim/truth' in part:
+            truth.add(part['sim/truth'])
+        st = part.get('follow/status')
+        if st is not None:
+            for c in REPORT_FIELDS:
+                pending[c] = np.concatenate((pending[c], st[c])) if c in pending else st[c]
+        flush(False)
+    flush(True)
+    metrics = acc[0].result() if acc else None
+    if metrics is None or n_done[0] < 2:
+        raise BagError(f'{bag.path}: follow/status holds {n_done[0]} readable message(s); '
+                       'a report needs a run')
+    series = env.result()
     recording = None
     rec_file = bag.path / 'recording.json' if bag.path.is_dir() else None
     if rec_file is not None and rec_file.is_file():
@@ -144,15 +220,13 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
         'bag': str(bag.path),
         'source': bag.custom_data.get('ladrc.source', 'unknown'),
         'scenario': bag.custom_data.get('ladrc.scenario', ''),
-        'duration_s': float(t[-1]),
-        'ticks': int(t.size),
-        'h_s': h_s,
-        'error_against': gap_source,
-        'metrics': m.as_dict(),
-        'timing': {'period_us': _stats(st['period_us'].astype(float)),
-                   'compute_us': _stats(st['compute_us'].astype(float)),
-                   'input_age_us': _stats(st['input_age_us'].astype(float)),
-                   'overruns': int(np.count_nonzero(st['overrun']))},
+        'duration_s': float(series['t_s'][-1]),
+        'ticks': int(n_done[0]),
+        'h_s': first['h_s'],
+        'error_against': ('true (sim/truth)' if truth is not None
+                          else 'measured (follow/status gap_mm)'),
+        'metrics': metrics.as_dict(),
+        'timing': {**{k: timing[k].stats() for k in TIMING}, 'overruns': overruns[0]},
         'messages': dict(bag.message_counts),
         'messages_lost': int(sum(lost.values())),
         'messages_lost_by_topic': lost,
@@ -161,37 +235,6 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     if recording is not None:
         report['recording'] = recording
     return report, series
-
-
-PLOT_BUCKETS = 5000
-"""A longer run is drawn as the min/max envelope of this many time buckets."""
-
-
-def envelope(series: dict[str, np.ndarray], buckets: int = PLOT_BUCKETS
-             ) -> dict[str, np.ndarray]:
-    """Decimate equal-length series for plotting: each bucket's min and max, in turn.
-
-    A figure 11 inches wide at 110 dpi has about 1 200 pixel columns, so an hour at 2 kHz
-    (7.2 M points) and its envelope of 2 x 5 000 points draw the same picture; matplotlib's
-    time and memory then no longer grow with the bag's length. Short runs are returned as they
-    are.
-    """
-    t = series['t_s']
-    n = t.size
-    if n <= 2 * buckets:
-        return series
-    edges = np.linspace(0, n, buckets + 1).astype(np.int64)[:-1]
-    out: dict[str, np.ndarray] = {}
-    with np.errstate(invalid='ignore'), warnings.catch_warnings():
-        warnings.simplefilter('ignore', RuntimeWarning)  # all-NaN buckets stay NaN
-        for key, y in series.items():
-            y = np.asarray(y, dtype=float)
-            lo = np.fmin.reduceat(y, edges)
-            hi = np.fmax.reduceat(y, edges)
-            if key == 't_s':
-                lo, hi = t[edges], t[np.r_[edges[1:] - 1, n - 1]]
-            out[key] = np.column_stack([lo, hi]).ravel()
-    return out
 
 
 def _save(fig: Any, out: Path, name: str) -> str:
@@ -210,12 +253,6 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    series = dict(series)
-    if 'true_gap_mm' in series:  # from the full data, before the plot decimation
-        t_full = series['t_s']
-        series['true_gap_rate'] = (np.gradient(series['true_gap_mm'], t_full)
-                                   if t_full.size > 1 else t_full * 0)
-    series = envelope(series)
     t = series['t_s']
     names = []
 
