@@ -385,3 +385,128 @@ def test_plot_envelope_keeps_every_extreme():
     assert np.all(np.diff(out['t_s']) >= 0)
     short = {'t_s': t[:100], 'y': y[:100]}
     assert envelope(short, buckets=1000) is short
+
+
+@pytest.mark.parametrize('compression', ['zstd', 'lz4', 'none'])
+def test_indexed_reader_equals_the_message_by_message_reader(tmp_path, compression):
+    """Through the MCAP message indexes (numpy rows per chunk) = through rosbags, per message.
+
+    Messages of one topic with strings (other sizes) mixed into the fixed layout, several
+    chunks, every compression: the same columns, types and values; the indexed path is the
+    one taken (it is not silently the other one).
+    """
+    from ladrc_tools.bags import bag as B
+
+    store = ladrc_typestore()
+    rows = RowPacker('ladrc_msgs/msg/FollowStatus').pack(
+        3000, {'tick': np.arange(3000), 'gap_mm': np.linspace(0, 1, 3000)})
+    cmd = RowPacker('ladrc_msgs/msg/VelocityCommand').pack(
+        3000, {'seq': np.arange(3000), 'velocity_mm_s': np.cos(np.arange(3000))})
+    path = tmp_path / 'bag'
+    with BagWriter(path, compression=compression) as w:
+        for i in range(3000):
+            if i % 997 == 5:
+                msg = store.deserialize_cdr(rows[i], 'ladrc_msgs/msg/FollowStatus')
+                msg.fault_reason = f'fault {i}'
+                w.write('follow/status', i * 500_000, msg)
+            else:
+                w.write_raw('follow/status', i * 500_000, rows[i])
+            w.write_raw('axis/velocity_command', i * 500_000 + 1, cmd[i])
+            if i % 1000 == 999:
+                w._mcap.flush()  # end the chunk: several chunks
+    with open_bag(path) as b:
+        assert b._indexes() is not None
+        fast = b.read_topics({'follow/status': None, 'axis/velocity_command': None})
+        b._indexes = lambda: None
+        slow = b.read_topics({'follow/status': None, 'axis/velocity_command': None})
+    for topic in fast:
+        assert fast[topic].keys() == slow[topic].keys()
+        for k in fast[topic]:
+            assert fast[topic][k].dtype == slow[topic][k].dtype, (topic, k)
+            assert np.array_equal(fast[topic][k], slow[topic][k]), (topic, k)
+    assert fast['follow/status']['fault_reason'][5] == 'fault 5'
+    assert np.array_equal(fast['follow/status']['tick'], np.arange(3000))
+    assert B.COLUMN_CHUNK > 0
+
+
+@pytest.mark.parametrize('indexed', [True, False])
+def test_time_slices_hold_consecutive_bag_time(tmp_path, monkeypatch, indexed):
+    """Bag.stream yields every topic's messages of one stretch of bag time per slice."""
+    st = RowPacker('ladrc_msgs/msg/FollowStatus').pack(4000, {'tick': np.arange(4000)})
+    tr = RowPacker('ladrc_msgs/msg/SimTruth').pack(4000, {'seq': np.arange(4000)})
+    path = tmp_path / 'bag'
+    with BagWriter(path) as w:
+        for i in range(4000):
+            w.write_raw('follow/status', i * 500_000, st[i])
+            w.write_raw('sim/truth', i * 500_000 + 7, tr[i])
+            if i % 400 == 399:
+                w._mcap.flush()  # ten chunks
+    monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 1000)
+    with open_bag(path) as b:
+        if not indexed:
+            b._indexes = lambda: None
+        parts = list(b.stream({'follow/status': ['tick'], 'sim/truth': ['seq']}))
+    assert len(parts) >= 4
+    ends = [max(c['timestamp_ns'][-1] for c in p.values()) for p in parts]
+    starts = [min(c['timestamp_ns'][0] for c in p.values()) for p in parts]
+    assert all(s > e for s, e in zip(starts[1:], ends, strict=False))
+    for topic, field in (('follow/status', 'tick'), ('sim/truth', 'seq')):
+        got = np.concatenate([p[topic][field] for p in parts if topic in p])
+        assert np.array_equal(got, np.arange(4000)), topic
+
+
+def test_envelope_fed_in_slices_equals_the_whole():
+    from ladrc_tools.offline.envelope import Envelope, envelope
+
+    n = 123_457
+    rng = np.random.default_rng(4)
+    series = {'t_s': np.arange(n) * 5e-4, 'y': rng.normal(size=n)}
+    series['y'][77_777] = 50.0
+    whole = envelope(series, buckets=1000)
+    env = Envelope(n, buckets=1000)
+    cuts = [0, 1, 999, 65_536, 65_537, 100_000, n]
+    for a, b in zip(cuts, cuts[1:], strict=False):
+        env.add({k: v[a:b] for k, v in series.items()})
+    got = env.result()
+    for k in whole:
+        assert np.array_equal(whole[k], got[k]), k
+    assert got['y'].max() == 50.0 and got['t_s'][-1] == series['t_s'][-1]
+
+
+def test_timing_quantiles_exact_then_within_their_bin_width(monkeypatch):
+    from ladrc_tools.offline import quantiles as Q
+
+    rng = np.random.default_rng(5)
+    x = np.concatenate([rng.normal(500.0, 3.0, 30_000), [-20.0, 9000.0, np.nan]])
+    exact = Q.Quantiles()
+    exact.add(x)
+    fin = x[np.isfinite(x)]
+    assert exact.stats() == {'p50': float(np.percentile(fin, 50)),
+                             'p99': float(np.percentile(fin, 99)), 'max': 9000.0}
+    monkeypatch.setattr(Q, 'EXACT_MAX', 1000)  # the histogram past EXACT_MAX values
+    hist = Q.Quantiles()
+    for part in np.array_split(x, 7):
+        hist.add(part)
+    assert hist.values is None
+    for key, q in (('p50', 50), ('p99', 99)):
+        assert hist.stats()[key] == pytest.approx(np.percentile(fin, q), rel=6e-4), key
+    assert hist.stats()['max'] == 9000.0
+
+
+def test_report_in_small_slices_equals_one_slice(run_bag, tmp_path, monkeypatch):
+    """The report's one pass (truth join, metrics, loss, plot envelope) across many slices."""
+    _, path = run_bag
+    assert ladrc(['report', str(path), '-o', str(tmp_path / 'one'), '-q']) == 0
+    monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 333)
+    with open_bag(path) as b:
+        b._indexes = lambda: None  # message by message: many slices
+        from ladrc_tools.offline.report import analyse
+
+        sliced, series = analyse(b)
+    one = json.loads((tmp_path / 'one' / 'report.json').read_text())
+    for k, v in one['metrics'].items():
+        assert sliced['metrics'][k] == pytest.approx(v, rel=1e-9, nan_ok=True) or (
+            v is None and math.isnan(sliced['metrics'][k])), k
+    assert sliced['messages_lost'] == one['messages_lost'] == 0
+    assert sliced['ticks'] == one['ticks']
+    assert series['t_s'].size == series['true_gap_mm'].size == series['gap_mm'].size

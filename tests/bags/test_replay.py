@@ -149,13 +149,13 @@ def test_own_replay_exits_1_on_mismatch(headless, tmp_path, capsys, monkeypatch)
     _, path = headless
     import ladrc_tools.offline.replay as R
 
-    real = R.load_recording
+    real = R._stream_batches
 
-    def perturbed(p, **kwargs):
-        rec = real(p, **kwargs)
-        rec.inputs['encoder_mm'] = rec.inputs['encoder_mm'] + 1e-9
-        return rec
-    monkeypatch.setattr(R, 'load_recording', perturbed)
+    def perturbed(*args, **kwargs):
+        for batch in real(*args, **kwargs):
+            batch.inputs['encoder_mm'] = batch.inputs['encoder_mm'] + 1e-9
+            yield batch
+    monkeypatch.setattr(R, '_stream_batches', perturbed)
     assert ladrc(['replay', str(path), '--no-internals']) == 1
     line = _json_line(capsys.readouterr().out)
     assert line['mismatches'] > 0 and line['first_mismatch_tick'] is not None
@@ -306,3 +306,55 @@ def test_replay_in_small_batches_is_the_same(headless, monkeypatch):
     for k, v in whole.internals.items():
         assert np.array_equal(v, batched.internals[k], equal_nan=True), k
     assert compare(rec, batched)['mismatches'] == 0
+
+
+def test_streamed_replay_equals_the_whole_run_replay(headless, monkeypatch):
+    """The CLI's path (bag read, stepped and compared a batch at a time) = the whole-run one.
+
+    Commands recorded later than their status ticks must still be joined: the bag's slices
+    end between a status tick and its command.
+    """
+    from ladrc_tools.offline.replay import Replay, open_recording, run_streamed
+
+    _, path = headless
+    rec = load_recording(path)
+    whole = compare(rec, replay(rec))
+    monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 301)
+    monkeypatch.setattr('ladrc_tools.bags.bag.Bag._indexes', lambda self: None)  # many slices
+    monkeypatch.setattr('ladrc_tools.offline.replay.CHUNK_TICKS', 257)
+    srec = open_recording(path)
+    assert srec.ticks is None and srec.n_ticks == rec.ticks.size
+    summary, _ = run_streamed(srec, Replay(srec), whatif=False)
+    for k in ('ticks', 'mismatches', 'missing_ticks', 'commands_missing',
+              'internal_mismatch_ticks', 'exact_until_tick', 'end_tick'):
+        assert summary[k] == whole[k], k
+    assert summary['mismatches'] == 0 and summary['commands_missing'] == 0
+    assert summary['ticks'] == rec.ticks.size
+
+
+def test_comparison_across_batches_finds_the_gap_where_the_whole_run_does(headless,
+                                                                          monkeypatch):
+    from ladrc_tools.offline.replay import Comparison, Replay
+
+    _, path = headless
+    rec = load_recording(path)
+    for gap_at in (1000, 1028, 1029, 1030):  # in a batch, at its first and last tick
+        keep = np.ones(rec.ticks.size, dtype=bool)
+        keep[gap_at:gap_at + 2] = False
+        cut = replace(rec, ticks=rec.ticks[keep], command=rec.command[keep],
+                      command_enable=rec.command_enable[keep],
+                      command_present=rec.command_present[keep],
+                      inputs={k: v[keep] for k, v in rec.inputs.items()},
+                      status={k: v[keep] for k, v in rec.status.items()})
+        whole = compare(cut, replay(cut))
+        monkeypatch.setattr('ladrc_tools.offline.replay.CHUNK_TICKS', 1029)
+        cmp = Comparison(live=False)
+        run = Replay(cut)
+        for rb, pb in run.batches():
+            cmp.add(rb, pb)
+        monkeypatch.undo()
+        got = cmp.summary(run)
+        for k in ('mismatches', 'mismatches_after_gap', 'missing_ticks', 'exact_until_tick',
+                  'internal_mismatch_ticks', 'first_mismatch_tick'):
+            assert got[k] == whole[k], (gap_at, k)
+        assert got['missing_ticks'] == 2 and got['exact_until_tick'] == gap_at - 1

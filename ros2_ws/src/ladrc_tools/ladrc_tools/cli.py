@@ -206,15 +206,15 @@ def _run_replay(a: argparse.Namespace) -> int:
 
     from .offline.replay import (
         OPEN_LOOP_NOTE,
+        Replay,
         ReplayError,
-        compare,
-        load_recording,
+        open_recording,
         parse_set,
-        replay,
+        run_streamed,
         whatif_params,
         write_whatif,
     )
-    from .offline.report import strict_json
+    from .offline.report import stderr_progress, strict_json
 
     whatif = bool(a.params or a.set or a.controller)
     try:
@@ -224,40 +224,38 @@ def _run_replay(a: argparse.Namespace) -> int:
             out = Path(str(Path(a.bag)).rstrip('/') + '_whatif')
         if out is not None and out.exists():
             raise CliError(f'{out} exists already: outputs are never overwritten')
-        from .offline.report import stderr_progress
-
-        rec = load_recording(a.bag, progress=stderr_progress('reading follow/status'))
+        rec = open_recording(a.bag)
         if whatif:
             params = whatif_params(rec, a.params, overrides)
             source = ' + '.join(x for x in (
                 f'--params {a.params}' if a.params else f'bag set ({rec.params_source})',
                 ' '.join(f'--set {s}' for s in a.set),
                 f'--controller {a.controller}' if a.controller else '') if x)
-            res = replay(rec, params, overrides=overrides or None, mode=a.controller,
-                         params_source=source, progress=stderr_progress('ticks (what-if)'))
+            run = Replay(rec, params, overrides=overrides or None, mode=a.controller,
+                         params_source=source)
         else:
-            res = replay(rec, record_internals=not a.no_internals,
-                         progress=stderr_progress('ticks (replay)'))
+            run = Replay(rec, record_internals=not a.no_internals)
+        # one pass: the bag is read, stepped and compared a batch at a time
+        summary, wi = run_streamed(rec, run, whatif, stderr_progress(
+            'what-if' if whatif else 'replay'))
     except (ReplayError, ParameterError) as exc:
         raise CliError(' '.join(str(exc).split())) from None
-    summary = compare(rec, res)
     print(f'bag: {rec.path} ({rec.source or "unknown source"}, ticks {summary["start_tick"]}'
           f'..{summary["end_tick"]}, {summary["ticks"]} replayed at '
           f'{summary["ticks_per_s"]:.0f} ticks/s)')
-    print(f'parameters: {res.params_source}')
-    for note in rec.notes + res.notes:
+    print(f'parameters: {run.params_source}')
+    for note in rec.notes + run.notes:
         print(f'note: {note}')
-    for r in res.rejected:
+    for r in run.rejected:
         print(f'rejected by the replayed controller: {r}')
     if summary['missing_ticks']:
         print(f'{summary["missing_ticks"]} tick(s) missing: exact replay holds only up to tick '
               f'{summary["exact_until_tick"]}; {summary["mismatches_after_gap"]} mismatch(es) '
               'after it (the controller cannot be stepped over ticks the bag lacks)')
-    if whatif:
-        from .offline.replay import whatif_table
-
-        table = whatif_table(rec, res)
-        written = write_whatif(rec, res, out)
+    if wi is not None:
+        table = wi.table(run.rejected)
+        written = write_whatif(rec.path, table, wi.plot.result(), run.params,
+                               run.params_source, out)
         print(f'what-if ({OPEN_LOOP_NOTE})')
         print(f'command RMS recorded {table["command_rms_recorded_mm_s"]:.4g} mm/s, what-if '
               f'{table["command_rms_whatif_mm_s"]:.4g} mm/s; difference RMS '

@@ -998,7 +998,8 @@ class Bag:
     def seq_loss(self, topic: str) -> tuple[int, int]:
         """Return ``(received, lost)`` of a counter topic: lost = sum of gaps in its seq."""
         self.require(topic)
-        seq = np.fromiter((seq_of(data) for _, data in self.raw(topic)), dtype=np.int64)
+        field = SEQ_FIELD.get(topic.lstrip('/'), 'seq')
+        seq = self.columns(topic, [field]).get(field, np.zeros(0, np.int64)).astype(np.int64)
         return int(seq.size), count_lost(seq)
 
 

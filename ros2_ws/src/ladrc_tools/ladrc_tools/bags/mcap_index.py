@@ -12,8 +12,8 @@ with one numpy fancy index into an ``(n, size)`` byte array, which
 :class:`~.bag.RowPacker` views as columns.
 
 The ``mcap`` library reads the summary (:meth:`mcap.reader.SeekingReader.get_summary`) and
-the chunk record (:meth:`mcap.records.Chunk.read`); zstandard / lz4 (the ``mcap`` library's
-own dependencies) decompress. Only the two fixed layouts below are parsed here:
+the chunk record (:meth:`mcap.records.Chunk.read`) and decompresses it
+(``mcap.stream_reader.get_chunk_data_stream``). Only the two fixed layouts below are parsed here:
 
 * Message record (opcode 0x05): opcode u8, record length u64, channel_id u16, sequence u32,
   log_time u64, publish_time u64, then the data (record length - 22 bytes);
@@ -122,20 +122,11 @@ class _Bytes:
 
 
 def _decompress(chunk: object) -> bytes:
-    """Return the chunk's records, decompressed as the ``mcap`` library does it."""
-    compression = chunk.compression  # type: ignore[attr-defined]
-    data = chunk.data  # type: ignore[attr-defined]
-    if compression == 'zstd':
-        import zstandard
+    """Return the chunk's records, decompressed by the ``mcap`` library (zstd, lz4, none)."""
+    from mcap.stream_reader import get_chunk_data_stream
 
-        return zstandard.decompress(data, chunk.uncompressed_size)  # type: ignore
-    if compression == 'lz4':
-        import lz4.frame
-
-        return lz4.frame.decompress(data)
-    if compression:
-        raise ValueError(f'unsupported chunk compression {compression!r}')
-    return bytes(data)
+    stream, size = get_chunk_data_stream(chunk)  # type: ignore[arg-type]
+    return stream.read(size)
 
 
 def _index_entries(raw: bytes, pos: int, channel_id: int) -> np.ndarray:

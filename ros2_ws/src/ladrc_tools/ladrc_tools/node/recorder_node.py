@@ -43,7 +43,6 @@ from ..bags.bag import (
     TOPIC_TYPES,
     BagError,
     BagWriter,
-    count_lost,
     seq_of,
     storage_of,
 )
@@ -181,18 +180,6 @@ class Recorder:
         tmp.write_text(json.dumps(summary, indent=1) + '\n', encoding='utf-8')
         tmp.replace(self.writer.path / 'recording.json')
         return summary
-
-
-def lost_in_bag(bag: Any) -> dict[str, int]:
-    """Seq-gap loss per counter topic of an open :class:`ladrc_tools.bags.bag.Bag`."""
-    import numpy as np
-
-    out = {}
-    for topic in SEQ_FIELD:
-        if bag.has(topic):
-            seq = np.fromiter((seq_of(d) for _, d in bag.raw(topic)), dtype=np.int64)
-            out[topic] = count_lost(seq)
-    return out
 
 
 class _Diagnostics:

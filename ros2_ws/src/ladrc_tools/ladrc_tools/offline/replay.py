@@ -20,13 +20,13 @@ Pure Python + numpy (no rclpy): reads bags with :mod:`ladrc_tools.bags.bag`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 import os
 from pathlib import Path
 import shutil
 import time
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 from ladrc_follow.control.follow import INTERNALS_KEYS, FollowController, TickInput
 from ladrc_follow.control.params import (
@@ -40,11 +40,13 @@ import numpy as np
 import yaml
 
 from ..bags.bag import Bag, BagError, open_bag
+from .envelope import Envelope
 
 __all__ = [
-    'ReplayError', 'Recording', 'RecordedEvent', 'ReplayResult', 'load_recording',
+    'ReplayError', 'Recording', 'RecordedBatch', 'RecordedEvent', 'Replay', 'ReplayBatch',
+    'ReplayResult', 'Comparison', 'WhatIf', 'open_recording', 'load_recording',
     'event_command', 'replay', 'compare', 'parse_set', 'whatif_params', 'whatif_table',
-    'write_whatif', 'OPEN_LOOP_NOTE', 'KIND_NAMES',
+    'write_whatif', 'run_streamed', 'OPEN_LOOP_NOTE', 'KIND_NAMES',
 ]
 
 # ladrc_msgs/FollowEvent kinds -> follow command names (follow_node.py's services).
@@ -97,32 +99,83 @@ class RecordedEvent:
 
 
 @dataclass
-class Recording:
-    """What a bag holds for replay: the per-tick inputs, the commands sent and the events."""
+class RecordedBatch:
+    """Consecutive ``follow/status`` ticks of a recording, their inputs and the commands sent."""
 
-    path: Path
     ticks: np.ndarray                    # follow/status tick, in bag order
     inputs: dict[str, np.ndarray]        # INPUT_FIELDS -> per-status-message values
-    status: dict[str, np.ndarray]        # every follow/status column (recorded internals)
+    status: dict[str, np.ndarray]        # the follow/status columns (recorded internals)
     command: np.ndarray                  # recorded velocity sent for each status tick
     command_enable: np.ndarray           # recorded enable bit (False where missing)
     command_present: np.ndarray          # an axis/velocity_command with seq == tick exists
+
+    def __getitem__(self, sl: slice) -> RecordedBatch:
+        return RecordedBatch(self.ticks[sl], {k: v[sl] for k, v in self.inputs.items()},
+                             {k: v[sl] for k, v in self.status.items()}, self.command[sl],
+                             self.command_enable[sl], self.command_present[sl])
+
+
+@dataclass
+class Recording:
+    """What a bag holds for replay: the events, the parameter set and the per-tick batches.
+
+    :func:`open_recording` reads only the small topics; the per-tick data streams from the
+    bag, a batch at a time (:meth:`batches`), so an hour-long bag replays in bounded memory.
+    :func:`load_recording` also holds the whole run in the array fields (tests, short bags).
+    """
+
+    path: Path
     events: list[RecordedEvent]          # follow/events in effect order (tick, bag order)
     params: ControllerParams             # the set in force at the first status tick
     params_source: str
     mode: str | None                     # headless runs' --controller override
     source: str                          # custom_data ladrc.source ('recorder', 'headless')
+    n_ticks: int                         # follow/status messages in the bag
     notes: list[str] = field(default_factory=list)
+    ticks: np.ndarray | None = None      # the whole run (load_recording), else None
+    inputs: dict[str, np.ndarray] | None = None
+    status: dict[str, np.ndarray] | None = None
+    command: np.ndarray | None = None
+    command_enable: np.ndarray | None = None
+    command_present: np.ndarray | None = None
 
     @property
     def h_s(self) -> float:
         """Controller period of the recording [s]."""
         return self.params.h_s
 
+    def whole(self) -> RecordedBatch:
+        """Return the whole run as one batch (a recording from :func:`load_recording`)."""
+        if self.ticks is None:
+            raise ValueError('a streamed recording holds no whole run: use batches()')
+        return RecordedBatch(self.ticks, self.inputs, self.status, self.command,
+                             self.command_enable, self.command_present)
+
+    def batches(self, progress: Callable[[int, int], None] | None = None
+                ) -> Iterator[RecordedBatch]:
+        """Yield the run in batches of about CHUNK_TICKS ticks, in bag order."""
+        if self.ticks is None:
+            yield from _stream_batches(self.path, progress)
+            return
+        whole, n = self.whole(), self.ticks.size
+        for c0 in range(0, n, CHUNK_TICKS):
+            yield whole[c0:min(n, c0 + CHUNK_TICKS)]
+            if progress is not None:
+                progress(min(n, c0 + CHUNK_TICKS), n)
+
+
+@dataclass
+class ReplayBatch:
+    """What the replayed controller sent for one :class:`RecordedBatch`."""
+
+    velocity: np.ndarray
+    enable: np.ndarray
+    internals: dict[str, np.ndarray]     # COMPARED_INTERNALS (empty without internals)
+
 
 @dataclass
 class ReplayResult:
-    """One replay: the commands sent per status tick, enable bits and (optional) internals."""
+    """One replay held whole: the commands sent per status tick, enable bits, internals."""
 
     velocity: np.ndarray
     enable: np.ndarray
@@ -137,6 +190,10 @@ class ReplayResult:
     def ticks_per_s(self) -> float:
         """Replay speed (ticks per wall-clock second)."""
         return self.velocity.size / self.wall_s if self.wall_s > 0 else math.inf
+
+    def whole(self) -> ReplayBatch:
+        """Return the whole replay as one batch."""
+        return ReplayBatch(self.velocity, self.enable, self.internals)
 
 
 def _state_name(state: int) -> str:
@@ -175,54 +232,121 @@ def _first_text(bag: Bag, topic: str) -> str | None:
     return None
 
 
-def load_recording(path: str | Path,
-                   progress: Callable[[int, int], None] | None = None) -> Recording:
-    """Read what :func:`replay` needs from a bag; :class:`BagError` (one line) if unusable."""
+CMD_FIELDS = ('seq', 'velocity_mm_s', 'enable')
+
+
+def _inputs(st: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    out = {}
+    for name in INPUT_FIELDS:
+        if name in st:
+            out[name] = st[name]
+        else:  # bags from before FollowStatus.gap_status: 0 = "not reported" (TickInput doc)
+            out[name] = np.zeros(st['tick'].size, dtype=np.uint8)
+    return out
+
+
+def _join_commands(st: dict[str, np.ndarray], cmd: dict[str, np.ndarray]) -> RecordedBatch:
+    """Join each status tick with its command (seq == tick; the last duplicate seq wins)."""
+    ticks = st['tick'].astype(np.int64)
+    command = np.asarray(st['velocity_mm_s'], dtype=np.float64).copy()
+    enable = np.zeros(ticks.size, dtype=bool)
+    present = np.zeros(ticks.size, dtype=bool)
+    seq = cmd['seq']
+    if seq.size:
+        order = np.argsort(seq, kind='stable')
+        s_sorted = seq[order]
+        pos = np.searchsorted(s_sorted, ticks, side='right') - 1
+        ok = (pos >= 0) & (s_sorted[np.maximum(pos, 0)] == ticks)
+        idx = order[pos[ok]]
+        command[ok] = cmd['velocity_mm_s'][idx]
+        enable[ok] = cmd['enable'][idx]
+        present = ok
+    return RecordedBatch(ticks, _inputs(st), st, command, enable, present)
+
+
+def _stream_batches(path: Path, progress: Callable[[int, int], None] | None
+                    ) -> Iterator[RecordedBatch]:
+    """Status ticks joined with their commands, read from the bag a slice at a time.
+
+    A status tick waits until a command at least as late has been read (or the bag ends, or
+    four batches wait), so the join is that of the whole run while the memory is a slice's.
+    """
+    with open_bag(path) as bag:
+        has_cmd = bag.has('axis/velocity_command')
+        wanted: dict[str, Any] = {'follow/status': REPLAY_FIELDS}
+        if has_cmd:
+            wanted['axis/velocity_command'] = CMD_FIELDS
+        cmd = {'seq': np.zeros(0, np.int64), 'velocity_mm_s': np.zeros(0),
+               'enable': np.zeros(0, bool)}
+        pending: dict[str, np.ndarray] = {}
+
+        def take(k: int) -> RecordedBatch:
+            nonlocal cmd
+            st = {c: v[:k] for c, v in pending.items()}
+            for c in pending:
+                pending[c] = pending[c][k:]
+            batch = _join_commands(st, cmd)
+            if batch.ticks.size:  # commands of later ticks stay for the next batch
+                keep = cmd['seq'] > batch.ticks.max()
+                cmd = {c: v[keep] for c, v in cmd.items()}
+            return batch
+
+        for part in bag.stream(wanted, progress):
+            c = part.get('axis/velocity_command')
+            if c is not None:
+                cmd = {'seq': np.r_[cmd['seq'], c['seq'].astype(np.int64)],
+                       'velocity_mm_s': np.r_[cmd['velocity_mm_s'],
+                                              c['velocity_mm_s'].astype(np.float64)],
+                       'enable': np.r_[cmd['enable'], c['enable'].astype(bool)]}
+            st = part.get('follow/status')
+            if st is not None:
+                for k, v in st.items():
+                    pending[k] = np.concatenate((pending[k], v)) if k in pending else v
+            if not pending or pending['tick'].size == 0:
+                continue
+            ticks = pending['tick'].astype(np.int64)
+            k = ticks.size
+            if has_cmd and ticks.size <= 4 * CHUNK_TICKS:
+                late = np.flatnonzero(ticks > (cmd['seq'].max() if cmd['seq'].size else -1))
+                k = int(late[0]) if late.size else ticks.size
+            if k:
+                yield take(k)
+        if pending and pending['tick'].size:
+            yield take(pending['tick'].size)
+
+
+def open_recording(path: str | Path) -> Recording:
+    """Read what :func:`replay` needs up front (events, parameters, the first tick).
+
+    The per-tick data stays in the bag (:meth:`Recording.batches`). :class:`BagError` (one
+    line) if the bag is unusable.
+    """
     with open_bag(path) as bag:
         bag.require('follow/status')
-        st = bag.columns('follow/status', REPLAY_FIELDS, progress=progress)
-        if st['tick'].size == 0:
+        it = bag.iter_columns('follow/status', ('tick', 'state') + INPUT_FIELDS)
+        head = next(it, None)
+        it.close()
+        if head is None or head['tick'].size == 0:
             raise BagError(f'{bag.path}: follow/status holds no message: nothing to replay')
         notes: list[str] = []
-        ticks = st['tick'].astype(np.int64)
-        inputs: dict[str, np.ndarray] = {}
         for name in INPUT_FIELDS:
-            if name in st:
-                inputs[name] = st[name]
-            elif name == 'gap_status':
-                # bags from before FollowStatus.gap_status: 0 = "not reported" (TickInput doc)
-                inputs[name] = np.zeros(ticks.size, dtype=np.uint8)
+            if name in head:
+                continue
+            if name == 'gap_status':
                 notes.append('follow/status has no gap_status: replayed as 0 (not reported)')
             else:
                 raise BagError(f'{bag.path}: follow/status has no {name!r} field: not a '
                                'ladrc_msgs/FollowStatus with the inputs of each tick')
-        if bag.has('axis/velocity_command'):
-            cmd = bag.columns('axis/velocity_command', ['seq', 'velocity_mm_s', 'enable'])
-        else:
-            cmd = {'seq': np.zeros(0, np.int64), 'velocity_mm_s': np.zeros(0),
-                   'enable': np.zeros(0, bool)}
+        if not bag.has('axis/velocity_command'):
             notes.append('no axis/velocity_command topic: compared with '
                          'follow/status.velocity_mm_s')
-        command = np.asarray(st['velocity_mm_s'], dtype=np.float64).copy()
-        enable = np.zeros(ticks.size, dtype=bool)
-        present = np.zeros(ticks.size, dtype=bool)
-        seq = np.asarray(cmd['seq'], dtype=np.int64)
-        if seq.size:
-            # the command of each status tick (seq == tick); the last duplicate seq wins
-            order = np.argsort(seq, kind='stable')
-            s_sorted = seq[order]
-            pos = np.searchsorted(s_sorted, ticks, side='right') - 1
-            ok = (pos >= 0) & (s_sorted[np.maximum(pos, 0)] == ticks)
-            idx = order[pos[ok]]
-            command[ok] = np.asarray(cmd['velocity_mm_s'], dtype=np.float64)[idx]
-            enable[ok] = np.asarray(cmd['enable'], dtype=bool)[idx]
-            present = ok
         events = _read_events(bag)
         params_text = _first_text(bag, 'run/parameters')
         custom = bag.custom_data
         bag_path = bag.path
+        n_ticks = bag.count('follow/status')
 
-    first = int(ticks[0])
+    first = int(head['tick'][0])
     param_events = [e for e in events if e.kind == PARAMETERS]
     initial = [e for e in param_events if e.tick <= first]
     if initial:
@@ -244,16 +368,32 @@ def load_recording(path: str | Path,
         notes.append(f'{len(early)} event(s) took effect before the first recorded tick '
                      f'{first} and are not re-applied')
     if first != 0:
-        state0 = int(st['state'][0]) if 'state' in st else 0
+        state0 = int(head['state'][0]) if 'state' in head else 0
         notes.append(f'the bag starts at tick {first} in state {_state_name(state0)}: replay '
                      'starts from a fresh controller, exact only if it was IDLE and had not '
                      'followed before')
     mode = custom.get('ladrc.controller')
-    return Recording(path=Path(bag_path), ticks=ticks, inputs=inputs, status=st,
-                     command=command, command_enable=enable, command_present=present,
-                     events=[e for e in events if e.tick >= first], params=params,
-                     params_source=source, mode=mode if mode in ('ladrc', 'pid') else None,
-                     source=str(custom.get('ladrc.source', '')), notes=notes)
+    return Recording(path=Path(bag_path), events=[e for e in events if e.tick >= first],
+                     params=params, params_source=source,
+                     mode=mode if mode in ('ladrc', 'pid') else None,
+                     source=str(custom.get('ladrc.source', '')), n_ticks=n_ticks, notes=notes)
+
+
+def load_recording(path: str | Path,
+                   progress: Callable[[int, int], None] | None = None) -> Recording:
+    """:func:`open_recording` with the whole run read into the array fields."""
+    rec = open_recording(path)
+    parts = list(rec.batches(progress))
+
+    def cat(get: Callable[[RecordedBatch], np.ndarray]) -> np.ndarray:
+        return np.concatenate([get(b) for b in parts])
+
+    return replace(rec, ticks=cat(lambda b: b.ticks),
+                   inputs={k: cat(lambda b, k=k: b.inputs[k]) for k in INPUT_FIELDS},
+                   status={k: cat(lambda b, k=k: b.status[k]) for k in parts[0].status},
+                   command=cat(lambda b: b.command),
+                   command_enable=cat(lambda b: b.command_enable),
+                   command_present=cat(lambda b: b.command_present))
 
 
 # ---- events -> controller ---------------------------------------------------------------------
@@ -351,117 +491,143 @@ def _delta(old: ControllerParams, new: ControllerParams) -> dict[str, Any]:
 
 
 # ---- replay -----------------------------------------------------------------------------------
-def replay(rec: Recording, params: ControllerParams | None = None, *,
-           overrides: Mapping[str, Any] | None = None, mode: str | None = None,
-           record_internals: bool = True, params_source: str | None = None,
-           progress: Callable[[int, int], None] | None = None) -> ReplayResult:
-    """Step a fresh controller over ``rec``'s inputs, re-applying its events at their ticks.
+class Replay:
+    """One replay of a recording, stepped batch by batch (:meth:`batches`).
 
     ``params=None`` replays with the bag's own set (every recorded PARAMETERS event applied
     as recorded). A what-if set (``params``, ``overrides``) starts the run instead; a later
     recorded parameter change is then applied as its *change* (the keys that differ from the
     previous recorded set) on top of the running what-if set, with ``overrides`` kept on top.
-    ``mode`` ('ladrc' | 'pid') overrides the bag's headless ``--controller``.
+    ``mode`` ('ladrc' | 'pid') overrides the bag's headless ``--controller``. After the
+    batches: ``rejected`` (commands the controller refused), ``notes``, ``ticks``, ``wall_s``.
     """
-    own = params is None and not overrides
-    start = rec.params if params is None else params
-    if overrides:
-        start = _with(start, overrides, '--set')
-    pins = dict(overrides or {})
-    ctl = FollowController(start, mode=mode or rec.mode)
-    n = rec.ticks.size
-    events = rec.events
-    n_ev = len(events)
-    j = 0
-    recorded_set = rec.params
-    rejected: list[str] = []
-    notes: list[str] = []
-    out_v = np.zeros(n, dtype=np.float64)
-    out_en = np.zeros(n, dtype=bool)
-    int_parts: dict[str, list[np.ndarray]] = {k: [] for k in COMPARED_INTERNALS}
-    new_tick = tuple.__new__
-    step = ctl.step
-    internals = ctl.internals
-    wall0 = time.perf_counter()
-    for c0 in range(0, n, CHUNK_TICKS):
-        c1 = min(n, c0 + CHUNK_TICKS)
-        # plain Python values for one batch (the per-tick path is scalar code)
-        ticks = rec.ticks[c0:c1].tolist()
-        t_l, gap_l, valid_l, gst_l, enc_l, est_l, den_l, dfl_l, stat_l = (
-            rec.inputs[f][c0:c1].tolist() for f in INPUT_FIELDS)
-        valid_l = [bool(v) for v in valid_l]
-        den_l = [bool(v) for v in den_l]
-        dfl_l = [bool(v) for v in dfl_l]
-        stat_l = [int(v) for v in stat_l]
-        chunk_v = [0.0] * (c1 - c0)
-        chunk_en = [False] * (c1 - c0)
-        rows: list[dict] | None = [] if record_internals else None
-        for i in range(c1 - c0):
-            k = ticks[i]
-            # events due at or before this tick (also those of ticks missing in the bag)
-            while j < n_ev and events[j].tick <= k:
-                ev = events[j]
-                j += 1
-                if ev.kind == PARAMETERS:
-                    try:
-                        new_set = params_from_dict(yaml.safe_load(ev.text))
-                    except (yaml.YAMLError, ParameterError) as exc:
-                        notes.append(f'tick {ev.tick}: recorded parameter set unusable '
-                                     f'({" ".join(str(exc).split())[:120]}); not applied')
-                        continue
-                    if own:
-                        target = new_set
+
+    def __init__(self, rec: Recording, params: ControllerParams | None = None, *,
+                 overrides: Mapping[str, Any] | None = None, mode: str | None = None,
+                 record_internals: bool = True, params_source: str | None = None) -> None:
+        self.rec = rec
+        self.own = params is None and not overrides
+        start = rec.params if params is None else params
+        if overrides:
+            start = _with(start, overrides, '--set')
+        self.params = start
+        self.pins = dict(overrides or {})
+        self.mode = mode or rec.mode
+        self.record_internals = record_internals
+        self.params_source = params_source or (rec.params_source if self.own else 'what-if')
+        self.rejected: list[str] = []
+        self.notes: list[str] = []
+        self.ticks = 0
+        self.wall_s = 0.0
+
+    @property
+    def ticks_per_s(self) -> float:
+        """Replay speed (ticks per wall-clock second of stepping)."""
+        return self.ticks / self.wall_s if self.wall_s > 0 else math.inf
+
+    def batches(self, progress: Callable[[int, int], None] | None = None
+                ) -> Iterator[tuple[RecordedBatch, ReplayBatch]]:
+        """Step a fresh controller over the recording; yield each batch and what it sent."""
+        ctl = FollowController(self.params, mode=self.mode)
+        events = self.rec.events
+        n_ev = len(events)
+        j = 0
+        recorded_set = self.rec.params
+        notes, rejected = self.notes, self.rejected
+        new_tick = tuple.__new__
+        step = ctl.step
+        internals = ctl.internals
+        for rb in self.rec.batches(progress):
+            wall0 = time.perf_counter()
+            m = rb.ticks.size
+            # plain Python values for one batch (the per-tick path is scalar code)
+            ticks = rb.ticks.tolist()
+            t_l, gap_l, valid_l, gst_l, enc_l, est_l, den_l, dfl_l, stat_l = (
+                rb.inputs[f].tolist() for f in INPUT_FIELDS)
+            valid_l = [bool(v) for v in valid_l]
+            den_l = [bool(v) for v in den_l]
+            dfl_l = [bool(v) for v in dfl_l]
+            stat_l = [int(v) for v in stat_l]
+            out_v = [0.0] * m
+            out_en = [False] * m
+            rows: list[dict] | None = [] if self.record_internals else None
+            for i in range(m):
+                k = ticks[i]
+                # events due at or before this tick (also those of ticks missing in the bag)
+                while j < n_ev and events[j].tick <= k:
+                    ev = events[j]
+                    j += 1
+                    if ev.kind == PARAMETERS:
+                        recorded_set = self._apply_set(ctl, ev, recorded_set)
+                    elif ev.kind in KIND_NAMES:
+                        name, kwargs = event_command(ev)
+                        ok, msg = ctl.command(name, **kwargs)
+                        if not ok:
+                            rejected.append(f'tick {ev.tick} {name}: {msg}')
                     else:
-                        change = _delta(recorded_set, new_set)
-                        change.update(pins)
-                        try:
-                            target = _with(ctl.params, change,
-                                           f'tick {ev.tick} parameter change')
-                        except ReplayError as exc:
-                            notes.append(f'{exc}; not applied')
-                            recorded_set = new_set
-                            continue
-                    recorded_set = new_set
-                    try:
-                        ctl.set_params(target)
-                    except ValueError as exc:
-                        notes.append(f'tick {ev.tick}: parameter set refused '
-                                     f'({" ".join(str(exc).split())[:120]})')
-                elif ev.kind in KIND_NAMES:
-                    name, kwargs = event_command(ev)
-                    ok, msg = ctl.command(name, **kwargs)
-                    if not ok:
-                        rejected.append(f'tick {ev.tick} {name}: {msg}')
-                else:
-                    notes.append(f'tick {ev.tick}: unknown event kind {ev.kind} ignored')
-            u = step(new_tick(TickInput, (t_l[i], gap_l[i], valid_l[i], gst_l[i], enc_l[i],
-                                          est_l[i], den_l[i], dfl_l[i], stat_l[i])))
-            # follow_node: the velocity sent is the step output when enabled, else 0.0
-            if ctl.enable:
-                chunk_v[i] = u
-                chunk_en[i] = True
+                        notes.append(f'tick {ev.tick}: unknown event kind {ev.kind} ignored')
+                u = step(new_tick(TickInput, (t_l[i], gap_l[i], valid_l[i], gst_l[i], enc_l[i],
+                                              est_l[i], den_l[i], dfl_l[i], stat_l[i])))
+                # follow_node: the velocity sent is the step output when enabled, else 0.0
+                if ctl.enable:
+                    out_v[i] = u
+                    out_en[i] = True
+                if rows is not None:
+                    rows.append(internals())
+            got = {}
             if rows is not None:
-                rows.append(internals())
-        out_v[c0:c1] = chunk_v
-        out_en[c0:c1] = chunk_en
-        if progress is not None:
-            progress(c1, n)
-        if rows is not None:
-            for key in COMPARED_INTERNALS:
-                int_parts[key].append(np.fromiter((r[key] for r in rows), dtype=float,
-                                                  count=len(rows)))
-    if j < n_ev:
-        notes.append(f'{n_ev - j} event(s) after the last recorded tick not applied')
-    int_arrays = {}
-    if record_internals:
-        for k in list(int_parts):  # column by column: the batches are released as joined
-            v = int_parts.pop(k)
-            int_arrays[k] = np.concatenate(v) if v else np.zeros(0)
-    wall = time.perf_counter() - wall0
-    src = params_source or (rec.params_source if own else 'what-if')
-    return ReplayResult(velocity=out_v, enable=out_en, internals=int_arrays,
-                        params=start, params_source=src, rejected=rejected, notes=notes,
-                        wall_s=wall)
+                got = {key: np.fromiter((r[key] for r in rows), dtype=float, count=m)
+                       for key in COMPARED_INTERNALS}
+            self.ticks += m
+            self.wall_s += time.perf_counter() - wall0
+            yield rb, ReplayBatch(np.asarray(out_v, dtype=np.float64),
+                                  np.asarray(out_en, dtype=bool), got)
+        if j < n_ev:
+            notes.append(f'{n_ev - j} event(s) after the last recorded tick not applied')
+
+    def _apply_set(self, ctl: FollowController, ev: RecordedEvent,
+                   recorded_set: ControllerParams) -> ControllerParams:
+        """Apply a recorded PARAMETERS event; return the recorded set now in force."""
+        try:
+            new_set = params_from_dict(yaml.safe_load(ev.text))
+        except (yaml.YAMLError, ParameterError) as exc:
+            self.notes.append(f'tick {ev.tick}: recorded parameter set unusable '
+                              f'({" ".join(str(exc).split())[:120]}); not applied')
+            return recorded_set
+        if self.own:
+            target = new_set
+        else:
+            change = _delta(recorded_set, new_set)
+            change.update(self.pins)
+            try:
+                target = _with(ctl.params, change, f'tick {ev.tick} parameter change')
+            except ReplayError as exc:
+                self.notes.append(f'{exc}; not applied')
+                return new_set
+        try:
+            ctl.set_params(target)
+        except ValueError as exc:
+            self.notes.append(f'tick {ev.tick}: parameter set refused '
+                              f'({" ".join(str(exc).split())[:120]})')
+        return new_set
+
+
+def replay(rec: Recording, params: ControllerParams | None = None, *,
+           overrides: Mapping[str, Any] | None = None, mode: str | None = None,
+           record_internals: bool = True, params_source: str | None = None,
+           progress: Callable[[int, int], None] | None = None) -> ReplayResult:
+    """Run a :class:`Replay` and hold its whole output (the arguments of :class:`Replay`)."""
+    run = Replay(rec, params, overrides=overrides, mode=mode,
+                 record_internals=record_internals, params_source=params_source)
+    parts = [pb for _, pb in run.batches(progress)]
+    keys = COMPARED_INTERNALS if record_internals else ()
+    return ReplayResult(
+        velocity=np.concatenate([p.velocity for p in parts]) if parts else np.zeros(0),
+        enable=np.concatenate([p.enable for p in parts]) if parts else np.zeros(0, bool),
+        internals={k: np.concatenate([p.internals[k] for p in parts]) if parts
+                   else np.zeros(0) for k in keys},
+        params=run.params, params_source=run.params_source, rejected=run.rejected,
+        notes=run.notes, wall_s=run.wall_s)
 
 
 # ---- comparison -------------------------------------------------------------------------------
@@ -470,8 +636,8 @@ def _bits_differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             != np.ascontiguousarray(b, dtype=np.float64).view(np.uint64))
 
 
-def compare(rec: Recording, res: ReplayResult) -> dict[str, Any]:
-    """Compare a replay with the recording, bit for bit; return the summary dict.
+class Comparison:
+    """A replay against its recording, bit for bit, fed batch by batch (:meth:`add`).
 
     ``mismatches`` counts ticks whose sent velocity differs in its float64 bit pattern, up to
     the first break in the status ticks (a missing tick breaks exact replay after it: the
@@ -480,144 +646,242 @@ def compare(rec: Recording, res: ReplayResult) -> dict[str, Any]:
     (live bags only: headless bags derive it from the state). ``internal_mismatch_ticks``
     counts ticks where a recorded status internal (ESO states, terms, state, ...) differs.
     """
-    ticks = rec.ticks
-    n = ticks.size
-    d = np.diff(ticks)
-    breaks = np.flatnonzero(d != 1)
-    missing = int(np.sum(d[d > 1] - 1)) if d.size else 0
-    exact_end = int(breaks[0]) + 1 if breaks.size else n  # status index of the first break
-    diff = _bits_differ(rec.command, res.velocity)
-    mism_idx = np.flatnonzero(diff[:exact_end])
-    after = int(np.count_nonzero(diff[exact_end:]))
-    live = rec.source != 'headless'
-    en_diff = (rec.command_enable != res.enable) & rec.command_present
-    enable_mism = int(np.count_nonzero(en_diff[:exact_end])) if live else None
-    int_ticks = 0
-    first_int: dict[str, Any] | None = None
-    int_fields: dict[str, int] = {}
-    if res.internals:
-        any_diff = np.zeros(n, dtype=bool)
-        for key, mine in res.internals.items():
-            if key not in rec.status:
+
+    def __init__(self, live: bool) -> None:
+        self.live = live
+        self.n = 0
+        self.start_tick: int | None = None
+        self.prev_tick: int | None = None
+        self.end_tick: int | None = None
+        self.broken = False              # a tick is missing: exactness ends there
+        self.exact_until: int | None = None
+        self.missing = 0
+        self.mismatches = 0
+        self.after = 0
+        self.first: dict[str, Any] | None = None
+        self.enable_mism = 0
+        self.commands_missing = 0
+        self.int_ticks = 0
+        self.int_fields: dict[str, int] = {}
+        self.first_int: dict[str, Any] | None = None
+
+    def add(self, rb: RecordedBatch, pb: ReplayBatch) -> None:
+        """Compare one batch."""
+        ticks = rb.ticks
+        m = ticks.size
+        if m == 0:
+            return
+        if self.start_tick is None:
+            self.start_tick = int(ticks[0])
+        d = np.diff(ticks if self.prev_tick is None else np.r_[self.prev_tick, ticks])
+        self.missing += int(np.sum(d[d > 1] - 1)) if d.size else 0
+        exact = m  # ticks of this batch before the first break
+        if self.broken:
+            exact = 0
+        else:
+            br = np.flatnonzero(d != 1)
+            if br.size:
+                exact = int(br[0]) + (0 if self.prev_tick is not None else 1)
+                self.broken = True
+            last_exact = exact - 1
+            if last_exact >= 0:
+                self.exact_until = int(ticks[last_exact])
+        self.prev_tick = self.end_tick = int(ticks[-1])
+        diff = _bits_differ(rb.command, pb.velocity)
+        mism = np.flatnonzero(diff[:exact])
+        if mism.size and self.first is None:
+            i0 = int(mism[0])
+            self.first = {'tick': int(ticks[i0]), 'recorded_mm_s': float(rb.command[i0]),
+                          'replayed_mm_s': float(pb.velocity[i0])}
+        self.mismatches += int(mism.size)
+        self.after += int(np.count_nonzero(diff[exact:]))
+        if self.live:
+            en = (rb.command_enable != pb.enable) & rb.command_present
+            self.enable_mism += int(np.count_nonzero(en[:exact]))
+        self.commands_missing += int(m - np.count_nonzero(rb.command_present))
+        self.n += m
+        any_diff = np.zeros(m, dtype=bool)
+        per_key: dict[str, np.ndarray] = {}
+        for key, mine in pb.internals.items():
+            if key not in rb.status:
                 continue
-            recd = np.asarray(rec.status[key], dtype=np.float64)
-            both_nan = np.isnan(recd) & np.isnan(mine)
-            dk = _bits_differ(recd, mine) & ~both_nan
-            dk[exact_end:] = False
+            recd = np.asarray(rb.status[key], dtype=np.float64)
+            dk = _bits_differ(recd, mine) & ~(np.isnan(recd) & np.isnan(mine))
+            dk[exact:] = False
             c = int(np.count_nonzero(dk))
             if c:
-                int_fields[key] = c
+                self.int_fields[key] = self.int_fields.get(key, 0) + c
                 any_diff |= dk
-        int_ticks = int(np.count_nonzero(any_diff))
-        if int_ticks:
+                per_key[key] = dk
+        self.int_ticks += int(np.count_nonzero(any_diff))
+        if self.first_int is None and any_diff.any():
             i0 = int(np.argmax(any_diff))
-            first_int = {'tick': int(ticks[i0]), 'fields': {
-                k: [float(rec.status[k][i0]), float(res.internals[k][i0])]
-                for k in int_fields if _bits_differ(
-                    np.asarray(rec.status[k][i0:i0 + 1], dtype=np.float64),
-                    res.internals[k][i0:i0 + 1])[0]
-                and not (math.isnan(rec.status[k][i0]) and math.isnan(res.internals[k][i0]))}}
-    first = int(ticks[mism_idx[0]]) if mism_idx.size else None
-    out: dict[str, Any] = {
-        'ticks': int(n),
-        'mismatches': int(mism_idx.size),
-        'first_mismatch_tick': first,
-        'missing_ticks': missing,
-        'params_source': res.params_source,
-        'start_tick': int(ticks[0]),
-        'end_tick': int(ticks[-1]),
-        'exact_until_tick': int(ticks[exact_end - 1]),
-        'mismatches_after_gap': after,
-        'commands_missing': int(n - np.count_nonzero(rec.command_present)),
-        'enable_mismatches': enable_mism,
-        'internal_mismatch_ticks': int_ticks,
-        'internal_mismatch_fields': int_fields,
-        'first_internal_mismatch': first_int,
-        'rejected_commands': len(res.rejected),
-        'replay_s': res.wall_s,
-        'ticks_per_s': res.ticks_per_s,
-    }
-    if first is not None:
-        i0 = int(mism_idx[0])
-        out['first_mismatch'] = {'recorded_mm_s': float(rec.command[i0]),
-                                 'replayed_mm_s': float(res.velocity[i0])}
-    return out
+            self.first_int = {'tick': int(ticks[i0]), 'fields': {
+                k: [float(rb.status[k][i0]), float(pb.internals[k][i0])]
+                for k, dk in per_key.items() if dk[i0]}}
+
+    def summary(self, run: Replay | ReplayResult) -> dict[str, Any]:
+        """Return the comparison as a dict (the replay's JSON line)."""
+        out: dict[str, Any] = {
+            'ticks': int(self.n),
+            'mismatches': self.mismatches,
+            'first_mismatch_tick': self.first['tick'] if self.first else None,
+            'missing_ticks': self.missing,
+            'params_source': run.params_source,
+            'start_tick': self.start_tick,
+            'end_tick': self.end_tick,
+            'exact_until_tick': self.exact_until,
+            'mismatches_after_gap': self.after,
+            'commands_missing': self.commands_missing,
+            'enable_mismatches': self.enable_mism if self.live else None,
+            'internal_mismatch_ticks': self.int_ticks,
+            'internal_mismatch_fields': self.int_fields,
+            'first_internal_mismatch': self.first_int,
+            'rejected_commands': len(run.rejected),
+            'replay_s': run.wall_s,
+            'ticks_per_s': run.ticks_per_s,
+        }
+        if self.first is not None:
+            out['first_mismatch'] = {k: self.first[k] for k in ('recorded_mm_s',
+                                                                 'replayed_mm_s')}
+        return out
+
+
+def compare(rec: Recording, res: ReplayResult) -> dict[str, Any]:
+    """Compare a whole replay with a whole recording (:class:`Comparison` in one batch)."""
+    cmp = Comparison(live=rec.source != 'headless')
+    cmp.add(rec.whole(), res.whole())
+    return cmp.summary(res)
 
 
 # ---- what-if comparison -----------------------------------------------------------------------
-def _limit_hits(flags: np.ndarray) -> dict[str, int]:
-    f = np.nan_to_num(np.asarray(flags, dtype=float)).astype(np.int64)
-    return {'velocity': int(np.count_nonzero(f & LIMIT_VELOCITY)),
-            'acceleration': int(np.count_nonzero(f & LIMIT_ACCELERATION))}
+_WHATIF_INTERNALS = ('disturbance_term_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3', 'td_x1_mm',
+                     'u0_mm_s', 'p_term_mm_s', 'd_term_mm_s')
+
+
+class WhatIf:
+    """The recorded and the what-if command side by side, fed batch by batch (:meth:`add`).
+
+    Holds running sums (RMS, limit hits, time per state, largest internal differences) and
+    the plot's envelope (:class:`~.envelope.Envelope` over ``n_ticks``).
+    """
+
+    def __init__(self, h_s: float, n_ticks: int) -> None:
+        self.h_s = h_s
+        self.n = 0
+        self.sums = {'a': 0.0, 'b': 0.0, 'd': 0.0, 'count': 0}
+        self.dmax = -math.inf
+        self.limits = {'recorded': [0, 0], 'whatif': [0, 0]}
+        self.states = {'recorded': np.zeros(len(STATE_NAMES), np.int64),
+                       'whatif': np.zeros(len(STATE_NAMES), np.int64)}
+        self.internals_diff: dict[str, float] = {}
+        self.plot = Envelope(n_ticks)
+        self.t0: float | None = None
+
+    def add(self, rb: RecordedBatch, pb: ReplayBatch) -> None:
+        """Add one batch."""
+        a, b = rb.command, pb.velocity
+        m = a.size
+        if m == 0:
+            return
+        ok = np.isfinite(a) & np.isfinite(b)
+        dv = b[ok] - a[ok]
+        self.sums['a'] += float(np.sum(a[ok] ** 2))
+        self.sums['b'] += float(np.sum(b[ok] ** 2))
+        self.sums['d'] += float(np.sum(dv * dv))
+        self.sums['count'] += int(dv.size)
+        if dv.size:
+            self.dmax = max(self.dmax, float(np.max(np.abs(dv))))
+        zeros = np.zeros(m)
+        for who, flags, state in (
+                ('recorded', rb.status.get('limit_flags', zeros), rb.status.get('state', zeros)),
+                ('whatif', pb.internals.get('limit_flags', zeros),
+                 pb.internals.get('state', zeros))):
+            f = np.nan_to_num(np.asarray(flags, dtype=float)).astype(np.int64)
+            self.limits[who][0] += int(np.count_nonzero(f & LIMIT_VELOCITY))
+            self.limits[who][1] += int(np.count_nonzero(f & LIMIT_ACCELERATION))
+            s = np.nan_to_num(np.asarray(state, dtype=float), nan=-1).astype(int)
+            s = s[(s >= 0) & (s < len(STATE_NAMES))]
+            self.states[who] += np.bincount(s, minlength=len(STATE_NAMES))
+        for key in _WHATIF_INTERNALS:
+            if key in rb.status and key in pb.internals:
+                x = np.asarray(rb.status[key], dtype=float) - pb.internals[key]
+                x = x[np.isfinite(x)]
+                cur = self.internals_diff.get(key, 0.0)
+                self.internals_diff[key] = max(cur, float(np.max(np.abs(x))) if x.size else 0.0)
+        t = np.asarray(rb.inputs['t_s'], dtype=float)
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        dist = 'disturbance_term_mm_s'
+        nan = np.full(m, np.nan)
+        self.plot.add({'t_s': t - self.t0, 'recorded': a, 'whatif': b, 'difference': b - a,
+                       'dist_recorded': rb.status.get(dist, nan),
+                       'dist_whatif': pb.internals.get(dist, nan),
+                       'state_recorded': rb.status.get('state', nan),
+                       'state_whatif': pb.internals.get('state', nan)})
+        self.n += m
+
+    def table(self, rejected: list[str]) -> dict[str, Any]:
+        """Side-by-side figures of the recorded and the what-if command (mm/s, ticks)."""
+        c = self.sums['count']
+
+        def rms(key: str) -> float:
+            return math.sqrt(self.sums[key] / c) if c else math.nan
+
+        def states(who: str) -> dict[str, float]:
+            return {name: round(float(self.states[who][i]) * self.h_s, 6)
+                    for i, name in enumerate(STATE_NAMES) if self.states[who][i]}
+
+        return {
+            'ticks': int(self.n),
+            'command_rms_recorded_mm_s': rms('a'),
+            'command_rms_whatif_mm_s': rms('b'),
+            'command_rms_difference_mm_s': rms('d'),
+            'command_max_difference_mm_s': self.dmax if c else math.nan,
+            'limit_hits_recorded': dict(zip(('velocity', 'acceleration'),
+                                            self.limits['recorded'], strict=True)),
+            'limit_hits_whatif': dict(zip(('velocity', 'acceleration'),
+                                          self.limits['whatif'], strict=True)),
+            'state_time_s_recorded': states('recorded'),
+            'state_time_s_whatif': states('whatif'),
+            'internals_max_difference': dict(self.internals_diff),
+            'rejected_commands': rejected,
+            'open_loop': True,
+            'note': OPEN_LOOP_NOTE,
+        }
 
 
 def whatif_table(rec: Recording, res: ReplayResult) -> dict[str, Any]:
-    """Side-by-side figures of the recorded and the what-if command (mm/s, ticks)."""
-    a, b = rec.command, res.velocity
-    ok = np.isfinite(a) & np.isfinite(b)
-    dv = b[ok] - a[ok]
-    rec_flags = rec.status.get('limit_flags', np.zeros(a.size))
-    new_flags = res.internals.get('limit_flags', np.zeros(b.size))
-    h = rec.h_s
-
-    def rms(x: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(x * x))) if x.size else math.nan
-
-    def states(s: np.ndarray) -> dict[str, float]:
-        s = np.nan_to_num(np.asarray(s, dtype=float), nan=-1).astype(int)
-        return {name: round(float(np.count_nonzero(s == i)) * h, 6)
-                for i, name in enumerate(STATE_NAMES) if np.any(s == i)}
-
-    internals_diff = {}
-    for key in ('disturbance_term_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3', 'td_x1_mm',
-                'u0_mm_s', 'p_term_mm_s', 'd_term_mm_s'):
-        if key in rec.status and key in res.internals:
-            x = np.asarray(rec.status[key], dtype=float) - res.internals[key]
-            x = x[np.isfinite(x)]
-            internals_diff[key] = float(np.max(np.abs(x))) if x.size else 0.0
-    return {
-        'ticks': int(a.size),
-        'command_rms_recorded_mm_s': rms(a[ok]),
-        'command_rms_whatif_mm_s': rms(b[ok]),
-        'command_rms_difference_mm_s': rms(dv),
-        'command_max_difference_mm_s': float(np.max(np.abs(dv))) if dv.size else math.nan,
-        'limit_hits_recorded': _limit_hits(rec_flags),
-        'limit_hits_whatif': _limit_hits(new_flags),
-        'state_time_s_recorded': states(rec.status.get('state', np.zeros(a.size))),
-        'state_time_s_whatif': states(res.internals.get('state', np.zeros(b.size))),
-        'internals_max_difference': internals_diff,
-        'rejected_commands': res.rejected,
-        'open_loop': True,
-        'note': OPEN_LOOP_NOTE,
-    }
+    """Side-by-side figures of a whole recording and a whole what-if replay (:class:`WhatIf`)."""
+    wi = WhatIf(rec.h_s, rec.ticks.size)
+    wi.add(rec.whole(), res.whole())
+    return wi.table(res.rejected)
 
 
-def _plot(rec: Recording, res: ReplayResult, path: Path) -> None:
+def _plot(series: Mapping[str, np.ndarray], path: Path) -> None:
     import matplotlib
 
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    t = np.asarray(rec.inputs['t_s'], dtype=float)
-    t = t - t[0]
-    st = rec.status
+    t = series['t_s']
     fig, ax = plt.subplots(4, 1, figsize=(11, 10), sharex=True)
-    ax[0].plot(t, rec.command, lw=0.8, label='recorded')
-    ax[0].plot(t, res.velocity, lw=0.8, alpha=0.8, label='what-if')
+    ax[0].plot(t, series['recorded'], lw=0.8, label='recorded')
+    ax[0].plot(t, series['whatif'], lw=0.8, alpha=0.8, label='what-if')
     ax[0].set_ylabel('command [mm/s]')
     ax[0].legend(loc='upper right')
     ax[0].set_title('replay what-if (open loop: the recorded inputs do not react)')
-    ax[1].plot(t, res.velocity - rec.command, lw=0.8, color='C3')
+    ax[1].plot(t, series['difference'], lw=0.8, color='C3')
     ax[1].set_ylabel('what-if − recorded [mm/s]')
-    key = 'disturbance_term_mm_s'
-    if key in st and key in res.internals:
-        ax[2].plot(t, st[key], lw=0.8, label='recorded')
-        ax[2].plot(t, res.internals[key], lw=0.8, alpha=0.8, label='what-if')
+    if np.isfinite(series['dist_recorded']).any():
+        ax[2].plot(t, series['dist_recorded'], lw=0.8, label='recorded')
+        ax[2].plot(t, series['dist_whatif'], lw=0.8, alpha=0.8, label='what-if')
         ax[2].legend(loc='upper right')
     ax[2].set_ylabel('ESO disturbance\nterm −z/b0 [mm/s]')
-    if 'state' in st and 'state' in res.internals:
-        ax[3].step(t, st['state'], where='post', lw=0.8, label='recorded')
-        ax[3].step(t, res.internals['state'], where='post', lw=0.8, alpha=0.8, label='what-if')
+    if np.isfinite(series['state_recorded']).any():
+        ax[3].step(t, series['state_recorded'], where='post', lw=0.8, label='recorded')
+        ax[3].step(t, series['state_whatif'], where='post', lw=0.8, alpha=0.8,
+                   label='what-if')
         ax[3].set_yticks(range(len(STATE_NAMES)), STATE_NAMES)
         ax[3].legend(loc='upper right')
     ax[3].set_ylabel('state')
@@ -659,11 +923,13 @@ def _markdown(table: Mapping[str, Any], bag: Path, params_source: str) -> str:
     return '\n'.join(lines)
 
 
-def write_whatif(rec: Recording, res: ReplayResult, out_dir: str | Path) -> Path:
+def write_whatif(bag: Path, table: Mapping[str, Any], plot: Mapping[str, np.ndarray],
+                 params: ControllerParams, params_source: str, out_dir: str | Path) -> Path:
     """Write ``whatif.png``, ``whatif.md``, ``whatif.json`` and ``params.yaml`` to ``out_dir``.
 
-    Built under a temporary name and renamed when complete; an existing ``out_dir`` is
-    refused (:class:`ReplayError`).
+    ``table`` and ``plot`` come from :class:`WhatIf` (``table()``, ``plot.result()``). Built
+    under a temporary name and renamed when complete; an existing ``out_dir`` is refused
+    (:class:`ReplayError`).
     """
     import json
 
@@ -674,18 +940,33 @@ def write_whatif(rec: Recording, res: ReplayResult, out_dir: str | Path) -> Path
         raise ReplayError(f'{out} exists already: outputs are never overwritten')
     tmp = out.with_name(f'.{out.name}.partial')
     shutil.rmtree(tmp, ignore_errors=True)
-    table = whatif_table(rec, res)
     try:
         tmp.mkdir(parents=True)
-        _plot(rec, res, tmp / 'whatif.png')
-        (tmp / 'whatif.md').write_text(_markdown(table, rec.path, res.params_source),
-                                       encoding='utf-8')
+        _plot(plot, tmp / 'whatif.png')
+        (tmp / 'whatif.md').write_text(_markdown(table, bag, params_source), encoding='utf-8')
         (tmp / 'whatif.json').write_text(json.dumps(strict_json(
-            {'bag': str(rec.path), 'params_source': res.params_source, **table}), indent=1),
+            {'bag': str(bag), 'params_source': params_source, **table}), indent=1),
             encoding='utf-8')
-        (tmp / 'params.yaml').write_text(dump_params(res.params), encoding='utf-8')
+        (tmp / 'params.yaml').write_text(dump_params(params), encoding='utf-8')
         os.replace(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def run_streamed(rec: Recording, run: Replay, whatif: bool,
+                 progress: Callable[[int, int], None] | None = None
+                 ) -> tuple[dict[str, Any], WhatIf | None]:
+    """Replay ``rec`` batch by batch into a :class:`Comparison` (and a :class:`WhatIf`).
+
+    Nothing of the run is held beyond a batch: what an hour-long bag costs is time, not
+    memory. Returns the comparison summary and the what-if accumulator (or None).
+    """
+    cmp = Comparison(live=rec.source != 'headless')
+    wi = WhatIf(rec.h_s, rec.n_ticks) if whatif else None
+    for rb, pb in run.batches(progress):
+        cmp.add(rb, pb)
+        if wi is not None:
+            wi.add(rb, pb)
+    return cmp.summary(run), wi
