@@ -1,21 +1,31 @@
-"""Shift-long recording: the recorder's writer path fed a whole shift, and the tools on it.
+"""Shift-long recording: the recorder's writer path fed a whole shift, the tools on an hour.
 
-    scripts/in-env python bench/bag_scale.py [--hours 4] [--out DIR]           # part (a)
-    scripts/in-env python bench/bag_scale.py --tools [--tool-hours 1] [--bag DIR]  # part (b)
+    scripts/in-env python bench/bag_scale.py                      # all three parts (~35 min)
+    scripts/in-env python bench/bag_scale.py --part writer [--hours 4]
+    scripts/in-env python bench/bag_scale.py --part tools [--tool-hours 1] [--bag DIR]
+    scripts/in-env python bench/bag_scale.py --part live [--live-s 600]
 
-Part (a) of the recording issue: the contract's 2 kHz topics (capacitive height, feedback,
-velocity command, follow status, sim truth: 10 000 messages per second of simulated time,
-pre-serialized) go through :class:`ladrc_tools.bags.bag.BagWriter` exactly as the recorder's
-writer thread calls it, on a simulated clock (so the 0.25 s flushes and the 5 s
+Part ``writer`` (the recording issue's (a)): the contract's 2 kHz topics (capacitive height,
+feedback, velocity command, follow status, sim truth: 10 000 messages per second of simulated
+time, pre-serialized) go through :class:`ladrc_tools.bags.bag.BagWriter` exactly as the
+recorder's writer thread calls it, on a simulated clock (so the 0.25 s flushes and the 5 s
 ``metadata.yaml`` rewrites happen per simulated second, as live). Reported: the cost of the
 periodic work (flush + metadata) over the first and the last simulated minutes and their ratio
-(target <= 1.5), messages written vs fed (target: all), peak RSS, bytes per hour, and the
-bag read back (message count).
+(target <= 1.5), messages written vs fed (target: all), peak RSS, bytes per hour.
 
-Part (b) (``--tools``): a headless run of ``--tool-hours`` (a 0.3 mm 0.5 Hz sine sheet, the
-shipped controller) written as a bag (or ``--bag``), then ``ladrc replay`` and
-``ladrc report`` on it, each in its own process: wall time, times real time (targets: replay
->= 20x, report >= 100x) and peak RSS (target <= 1 GiB). Last line: JSON.
+Part ``tools`` ((b)): a headless run of ``--tool-hours`` (a 0.3 mm 0.5 Hz sine sheet, the
+shipped controller) written as a bag (or ``--bag``), then ``ladrc replay``, ``ladrc report``,
+``ladrc export`` and a what-if replay on it, each in its own process: wall time, times real
+time (targets: replay >= 20x, report >= 100x) and the child's peak RSS (target <= 1 GiB).
+
+Part ``live``: the full node set (sim, follow node, recorder; the bring-up) for ``--live-s``
+seconds of a sine-sheet follow, nothing else running: the recorder's summary (messages
+written, lost by seq gap, dropped by its queue), the load average meanwhile, the bag's bytes
+per hour.
+
+Last line: JSON with ``segment_close_ratio``, ``messages_lost``, ``recorder_peak_rss_mib``,
+``bytes_per_hour``, ``replay_realtime_x``, ``report_realtime_x``, ``tools_peak_rss_mib`` (null
+for a part not run) and each part's figures.
 """
 
 from __future__ import annotations
@@ -83,8 +93,8 @@ def _tool(args: list[str]) -> dict:
             'last_line': json.loads(tail[-1]) if tail else None}
 
 
-def tools(hours: float, bag: str | None) -> None:
-    """Part (b): replay and report of a long headless bag."""
+def tools(hours: float, bag: str | None) -> dict:
+    """Part (b): replay, report, export and what-if of a long headless bag."""
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import ControllerParams, dump_params
     from ladrc_sim.headless.runner import run
@@ -109,32 +119,84 @@ def tools(hours: float, bag: str | None) -> None:
         del result
         print(f'bag: {seconds:.0f} s simulated in {t1 - t0:.0f} s, written in {t2 - t1:.0f} s',
               file=sys.stderr, flush=True)
+    else:
+        with open_bag(bag) as b:
+            st = b.columns('follow/status', ['stamp_s'])['stamp_s']
+        seconds = float(st[-1] - st[0]) if st.size > 1 else 0.0
     size = sum(f.stat().st_size for f in Path(bag).iterdir())
-    replay = _tool(['replay', bag])
-    report = _tool(['report', bag, '-o', str(tmp / 'report'), '-q'])
-    out = {'hours': hours, 'bag_bytes': size,
-           'replay': {**{k: v for k, v in replay.items() if k != 'last_line'},
-                      'realtime_x': round(seconds / replay['wall_s'], 1),
-                      'mismatches': (replay['last_line'] or {}).get('mismatches')},
-           'report': {**{k: v for k, v in report.items() if k != 'last_line'},
-                      'realtime_x': round(seconds / report['wall_s'], 1)}}
+    out: dict = {'hours': round(seconds / 3600, 3), 'bag_bytes': size}
+    for name, args in (('replay', ['replay', bag]),
+                       ('report', ['report', bag, '-o', str(tmp / 'report'), '-q']),
+                       ('export', ['export', bag, '-o', str(tmp / 'csv'), '-q']),
+                       ('whatif', ['replay', bag, '--set', 'law.kp=20',
+                                   '-o', str(tmp / 'whatif')])):
+        r = _tool(args)
+        print(f'{name}: {r["wall_s"]} s, {r["peak_rss_mib"]} MiB', file=sys.stderr, flush=True)
+        row = {k: v for k, v in r.items() if k != 'last_line'}
+        row['realtime_x'] = round(seconds / r['wall_s'], 1) if r['wall_s'] else None
+        if name == 'replay':
+            row['mismatches'] = (r['last_line'] or {}).get('mismatches')
+        out[name] = row
+        if name == 'export':
+            out['export']['csv_bytes'] = sum(f.stat().st_size for f in (tmp / 'csv').iterdir())
+            shutil.rmtree(tmp / 'csv', ignore_errors=True)
     shutil.rmtree(tmp, ignore_errors=True)
-    print(json.dumps(out))
+    return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--hours', type=float, default=4.0, help='simulated recording length')
-    ap.add_argument('--out', default=None, help='bag folder (default: a temporary one)')
-    ap.add_argument('--tools', action='store_true', help='part (b): replay and report')
-    ap.add_argument('--tool-hours', type=float, default=1.0, help='part (b) bag length')
-    ap.add_argument('--bag', default=None, help='part (b): use this bag instead')
-    a = ap.parse_args()
-    if a.tools:
-        tools(a.tool_hours, a.bag)
-        return
-    tmp = None if a.out else Path(tempfile.mkdtemp(prefix='bag-scale-'))
-    path = Path(a.out) if a.out else tmp / 'shift'
+def live(seconds: float) -> dict:
+    """Part live: the bring-up's node set for ``seconds`` recording a bag; its summary."""
+    import os
+
+    from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
+    import yaml
+
+    tmp = Path(tempfile.mkdtemp(prefix='bag-scale-live-'))
+    scenario = tmp / 'shift_live.yaml'
+    scenario.write_text(yaml.safe_dump({
+        'name': 'shift_live', 'duration_s': seconds, 'seed': 3, 'initial_gap_mm': 3.0,
+        'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
+        'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 0.5}]},
+        'timeline': [{'t_s': 0.5, 'do': 'start_follow', 'target_gap_mm': 1.0}]}))
+    bag = tmp / 'bag'
+    up = Bringup(node_specs(str(scenario), None, str(bag)), isolated_env(), log_dir=tmp / 'logs')
+    load = []
+    t0 = time.monotonic()
+    try:
+        up.start()
+        while up.wait('ladrc_sim', 10.0) is None:
+            load.append(os.getloadavg()[0])
+            if any(p.poll() is not None for n, p in up.procs.items() if n != 'ladrc_sim'):
+                break
+            if time.monotonic() - t0 > seconds + 120:
+                break
+    finally:
+        codes = up.stop()
+    wall = time.monotonic() - t0
+    rec = json.loads((bag / 'recording.json').read_text()) if (bag / 'recording.json'
+                                                               ).is_file() else {}
+    size = sum(f.stat().st_size for f in bag.iterdir() if f.is_file())
+    with open_bag(bag) as b:
+        st = b.columns('follow/status', ['stamp_s'])['stamp_s']
+    recorded_s = float(st[-1] - st[0]) if st.size > 1 else 0.0
+    out = {'seconds': seconds, 'wall_s': round(wall, 1), 'exit_codes': codes,
+           'messages_total': rec.get('messages_total'),
+           'messages_lost': rec.get('messages_lost'),
+           'messages_dropped': rec.get('messages_dropped'),
+           'recorded_s': round(recorded_s, 1), 'bag_bytes': size,
+           'bytes_per_hour': round(size * 3600 / recorded_s) if recorded_s else None,
+           'load_avg_1min_mean': round(sum(load) / len(load), 2) if load else None,
+           'load_avg_1min_max': round(max(load), 2) if load else None,
+           'cpus': os.cpu_count(),
+           'machine_meanwhile': 'the three nodes and this bench only'}
+    shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+def writer(hours: float, out_dir: str | None) -> dict:
+    """Part (a): the recorder's writer path fed ``hours`` of the contract at full rate."""
+    tmp = None if out_dir else Path(tempfile.mkdtemp(prefix='bag-scale-'))
+    path = Path(out_dir) if out_dir else tmp / 'shift'
     # one second of each topic, pre-serialized (a varying seq would not change the cost)
     rows = {}
     for t, m in TOPICS.items():
@@ -156,7 +218,7 @@ def main() -> None:
             periodic.append((clock.t, dt))
 
     w.poll = timed_poll
-    seconds = int(round(a.hours * 3600))
+    seconds = int(round(hours * 3600))
     fed = 0
     wall0 = time.perf_counter()
     write = w.write_raw
@@ -184,18 +246,58 @@ def main() -> None:
     start_ms = float(first.mean() * 1e3) if first.size else float('nan')
     end_ms = float(last.mean() * 1e3) if last.size else float('nan')
     out = {
-        'hours_simulated': a.hours, 'messages_fed': fed, 'messages_written': read_back,
+        'hours_simulated': hours, 'messages_fed': fed, 'messages_written': read_back,
         'messages_lost': fed - read_back, 'wall_s': round(wall, 1),
         'realtime_x': round(seconds / wall, 1) if wall else None,
         'periodic_ms_start': round(start_ms, 3), 'periodic_ms_end': round(end_ms, 3),
         'periodic_end_over_start': round(end_ms / start_ms, 3) if start_ms else None,
         'periodic_ms_max': round(float(per[:, 1].max() * 1e3), 3) if per.size else None,
-        'bytes': size, 'bytes_per_hour': round(size / a.hours) if a.hours else None,
+        'bytes': size, 'bytes_per_hour': round(size / hours) if hours else None,
         'peak_rss_mib': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }
     if tmp is not None:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(json.dumps(out))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--part', choices=('all', 'writer', 'tools', 'live'), default='all')
+    ap.add_argument('--hours', type=float, default=4.0, help='writer: simulated length')
+    ap.add_argument('--out', default=None, help='writer: bag folder (default: temporary)')
+    ap.add_argument('--tool-hours', type=float, default=1.0, help='tools: bag length')
+    ap.add_argument('--bag', default=None, help='tools: use this bag instead')
+    ap.add_argument('--live-s', type=float, default=600.0, help='live: run length [s]')
+    a = ap.parse_args()
+    parts = ('writer', 'tools', 'live') if a.part == 'all' else (a.part,)
+    res: dict = {}
+    # the writer part first: its peak RSS (ru_maxrss of this process) is its own
+    if 'writer' in parts:
+        res['writer'] = writer(a.hours, a.out)
+        print(json.dumps({'writer': res['writer']}), flush=True)
+    if 'tools' in parts:
+        res['tools'] = tools(a.tool_hours, a.bag)
+        print(json.dumps({'tools': res['tools']}), flush=True)
+    if 'live' in parts:
+        res['live'] = live(a.live_s)
+        print(json.dumps({'live': res['live']}), flush=True)
+    w, t, lv = res.get('writer'), res.get('tools'), res.get('live')
+    lost = [x for x in ((w or {}).get('messages_lost'), (lv or {}).get('messages_lost'),
+                        (lv or {}).get('messages_dropped')) if x is not None]
+    rss = [t[k]['peak_rss_mib'] for k in ('replay', 'report', 'export', 'whatif')
+           if t and t[k]['peak_rss_mib'] is not None]
+    print(json.dumps({
+        'segment_close_ratio': w['periodic_end_over_start'] if w else None,
+        'messages_lost': sum(lost) if lost else None,
+        'recorder_peak_rss_mib': w['peak_rss_mib'] if w else None,
+        'bytes_per_hour': w['bytes_per_hour'] if w else None,
+        'live_bytes_per_hour': lv['bytes_per_hour'] if lv else None,
+        'replay_realtime_x': t['replay']['realtime_x'] if t else None,
+        'report_realtime_x': t['report']['realtime_x'] if t else None,
+        'export_realtime_x': t['export']['realtime_x'] if t else None,
+        'whatif_realtime_x': t['whatif']['realtime_x'] if t else None,
+        'tools_peak_rss_mib': max(rss) if rss else None,
+        **res}))
 
 
 if __name__ == '__main__':

@@ -19,6 +19,10 @@ import numpy as np
 from ..bags.bag import BagError, open_bag
 
 
+EXPORT_CHUNK = 8192
+"""Messages formatted at a time."""
+
+
 def topic_filename(topic: str) -> str:
     """``axis/capacitive_height`` -> ``axis__capacitive_height.csv`` (leading / dropped)."""
     return topic.strip('/').replace('/', '__') + '.csv'
@@ -41,8 +45,10 @@ def export_csv(bag_path: str | Path, out_dir: str | Path | None = None,
             for topic in sorted(bag.topics):
                 name = topic_filename(topic)
                 # one chunk of columns at a time: memory stays that of a chunk, at any length
+                # (a chunk's rows become Python strings: EXPORT_CHUNK keeps them few)
                 _write(tmp / name, bag.iter_columns(
-                    topic, progress=progress(topic) if progress else None))
+                    topic, progress=progress(topic) if progress else None,
+                    chunk=EXPORT_CHUNK))
                 names.append(name)
             os.replace(tmp, out)
         except BaseException:
