@@ -6,6 +6,7 @@ import csv
 import json
 import math
 import os
+import time
 
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
@@ -510,3 +511,49 @@ def test_report_in_small_slices_equals_one_slice(run_bag, tmp_path, monkeypatch)
     assert sliced['messages_lost'] == one['messages_lost'] == 0
     assert sliced['ticks'] == one['ticks']
     assert series['t_s'].size == series['true_gap_mm'].size == series['gap_mm'].size
+
+
+def test_segment_close_cost_does_not_grow_with_the_segments(tmp_path, monkeypatch):
+    """Closing the 1500th file costs what closing the 20th did (metadata.yaml included).
+
+    Compared as medians of 50 closes each with a generous factor, not against a time: a
+    rewrite that renders every closed file's entry again (as before) costs about 0.5 ms per
+    hundred files, 7 ms at 1500, against about 1 ms for a close.
+    """
+    import statistics
+
+    import yaml
+
+    clock = [0.0]
+    monkeypatch.setattr('ladrc_tools.bags.bag.time.monotonic', lambda: clock[0])
+    rows = RowPacker('ladrc_msgs/msg/VelocityCommand').pack(1, {'seq': 1})
+    path = tmp_path / 'split'
+    w = BagWriter(path, split_s=0.01, compression='none')
+    closes: list[float] = []
+    real_close = w._close_segment
+
+    def timed_close():
+        t0 = time.perf_counter()
+        real_close()
+        closes.append(time.perf_counter() - t0)
+    monkeypatch.setattr(w, '_close_segment', timed_close)
+    n = 1500
+    for i in range(n):
+        clock[0] = i * 0.01
+        w.write_raw('axis/velocity_command', i * 10_000_000, rows[0])
+    w.close()
+    first = statistics.median(closes[20:70])
+    last = statistics.median(closes[-51:-1])
+    assert last < 3.0 * first, (first, last)
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    files = sorted(p.name for p in path.glob('*.mcap'))
+    assert len(closes) > 500 and len(info['files']) == len(files) == len(closes)
+    assert info['relative_file_paths'] == [f['path'] for f in info['files']]
+    assert sorted(info['relative_file_paths']) == files
+    assert info['message_count'] == n == sum(f['message_count'] for f in info['files'])
+    f7 = info['files'][7]
+    assert f7['path'] == 'split_7.mcap' and f7['message_count'] >= 1
+    assert f7['duration']['nanoseconds'] == 10_000_000 * (f7['message_count'] - 1)
+    assert info['duration']['nanoseconds'] == (n - 1) * 10_000_000
+    with open_bag(path) as b:
+        assert b.count('axis/velocity_command') == n

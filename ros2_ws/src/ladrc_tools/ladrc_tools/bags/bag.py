@@ -128,6 +128,14 @@ class _Segment:
     end_ns: int
     count: int
 
+    def yaml(self) -> tuple[str, str]:
+        """Its entries of ``relative_file_paths`` and ``files`` as metadata.yaml text."""
+        entry = {'path': self.path, 'starting_time': {'nanoseconds_since_epoch': self.start_ns},
+                 'duration': {'nanoseconds': max(0, self.end_ns - self.start_ns)},
+                 'message_count': self.count}
+        return (_indent(yaml.safe_dump([self.path])),
+                _indent(yaml.safe_dump([entry], sort_keys=False)))
+
 
 def fq(topic: str) -> str:
     """Fully qualified topic name (``/axis/feedback``), as ``ros2 bag record`` stores it."""
@@ -169,6 +177,10 @@ class BagWriter:
         self.typestore = typestore or ladrc_typestore()
         self._topics: dict[str, _Topic] = {}
         self._segments: list[_Segment] = []
+        self._segment_yaml: list[tuple[str, str]] = []  # closed files' metadata entries
+        self._segments_start: int | None = None
+        self._segments_end = 0
+        self._segments_count = 0
         self._mcap: McapFileWriter | None = None
         self._writer: Writer | None = None  # sqlite3 segment writer
         self._conns: dict[str, Any] = {}
@@ -318,29 +330,41 @@ class BagWriter:
             shutil.rmtree(self._seg_dir, ignore_errors=True)
             self._seg_dir = None
         start = self._seg_start if self._seg_count else 0
-        self._segments.append(_Segment(name, start, self._seg_end if self._seg_count else 0,
-                                       self._seg_count))
+        seg = _Segment(name, start, self._seg_end if self._seg_count else 0, self._seg_count)
+        self._segments.append(seg)
+        self._segment_yaml.append(seg.yaml())
+        if seg.count:  # the bag's time span and count, kept as running figures
+            self._segments_start = (seg.start_ns if self._segments_start is None
+                                    else min(self._segments_start, seg.start_ns))
+            self._segments_end = max(self._segments_end, seg.end_ns)
+            self._segments_count += seg.count
         self._write_metadata()
 
     def _write_metadata(self) -> None:
-        segs = list(self._segments)
+        """Rewrite ``metadata.yaml``: its cost must not grow with the files already closed.
+
+        Each closed file's two list entries (``relative_file_paths``, ``files``) are rendered
+        once, when it closes (:meth:`_Segment.yaml`), and joined as text; only the parts of
+        constant size (topics, counts, the open file) go through ``yaml.safe_dump`` each time.
+        """
+        open_seg = None
         if self._mcap is not None:  # the open file, as far as written
-            segs.append(_Segment(self._file_name(), self._seg_start if self._seg_count else 0,
-                                 self._seg_end, self._seg_count))
-        with_msgs = [s for s in segs if s.count]
-        start = min((s.start_ns for s in with_msgs), default=0)
-        end = max((s.end_ns for s in with_msgs), default=0)
+            open_seg = _Segment(self._file_name(), self._seg_start if self._seg_count else 0,
+                                self._seg_end, self._seg_count)
+        first = self._segments_start
+        start = min([x for x in (first, open_seg.start_ns if open_seg and open_seg.count
+                                 else None) if x is not None], default=0)
+        end = max(self._segments_end, open_seg.end_ns if open_seg and open_seg.count else 0)
         done = {t.name: t.count for t in self._topics.values()}
         if self._writer is not None:  # sqlite3: the open segment is not in the bag yet
             for name, conn in self._conns.items():
                 done[name] -= self._writer.counts[conn.id]
-        info = {
+        head = {
             'version': BAG_VERSION,
             'storage_identifier': self.storage,
-            'relative_file_paths': [s.path for s in segs],
             'duration': {'nanoseconds': max(0, end - start)},
             'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': sum(s.count for s in segs),
+            'message_count': self._segments_count + (open_seg.count if open_seg else 0),
             'topics_with_message_count': [
                 {'topic_metadata': {'name': t.name, 'type': t.msgtype,
                                     'serialization_format': 'cdr',
@@ -350,18 +374,24 @@ class BagWriter:
                 for t in self._topics.values()],
             'compression_format': '',
             'compression_mode': '',
-            'files': [{'path': s.path,
-                       'starting_time': {'nanoseconds_since_epoch': s.start_ns},
-                       'duration': {'nanoseconds': max(0, s.end_ns - s.start_ns)},
-                       'message_count': s.count} for s in segs],
-            'custom_data': dict(self.custom_data) or None,
-            'ros_distro': 'jazzy',
         }
+        tail = {'custom_data': dict(self.custom_data) or None, 'ros_distro': 'jazzy'}
+        entries = self._segment_yaml + ([open_seg.yaml()] if open_seg else [])
+        paths = [e[0] for e in entries]
+        files = [e[1] for e in entries]
+        text = ''.join([
+            yaml.safe_dump({'rosbag2_bagfile_information': head}, sort_keys=False),
+            '  relative_file_paths:' + ('\n' + ''.join(paths) if paths else ' []\n'),
+            '  files:' + ('\n' + ''.join(files) if files else ' []\n'),
+            _indent(yaml.safe_dump(tail, sort_keys=False))])
         tmp = self.path / 'metadata.yaml.tmp'
-        tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': info},
-                                      sort_keys=False), encoding='utf-8')
+        tmp.write_text(text, encoding='utf-8')
         os.replace(tmp, self.path / 'metadata.yaml')
         self._meta_written = time.monotonic()
+
+
+def _indent(text: str, by: str = '  ') -> str:
+    return ''.join(by + line for line in text.splitlines(keepends=True))
 
 
 # ---- fast serialization of fixed-layout rows ------------------------------------------------

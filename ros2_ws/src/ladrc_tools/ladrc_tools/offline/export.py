@@ -18,7 +18,6 @@ import numpy as np
 
 from ..bags.bag import BagError, open_bag
 
-
 EXPORT_CHUNK = 8192
 """Messages formatted at a time."""
 
