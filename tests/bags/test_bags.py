@@ -557,3 +557,21 @@ def test_segment_close_cost_does_not_grow_with_the_segments(tmp_path, monkeypatc
     assert info['duration']['nanoseconds'] == (n - 1) * 10_000_000
     with open_bag(path) as b:
         assert b.count('axis/velocity_command') == n
+
+
+def test_messages_of_one_topic_with_other_sizes_in_other_chunks(tmp_path):
+    """A topic whose chunks hold messages of different (string) sizes reads as one column."""
+    store = ladrc_typestore()
+    path = tmp_path / 'bag'
+    with BagWriter(path) as w:
+        for i, text in enumerate(['a' * 2000, 'b', 'cc' * 30]):
+            row = RowPacker('ladrc_msgs/msg/FollowEvent').pack(1, {'tick': i, 'kind': 8})[0]
+            msg = store.deserialize_cdr(row, 'ladrc_msgs/msg/FollowEvent')
+            msg.text = text
+            w.write('follow/events', i, msg)
+            w._mcap.flush()  # one chunk each
+    with open_bag(path) as b:
+        assert b._indexes() is not None
+        cols = b.columns('follow/events')
+    assert cols['text'].tolist() == ['a' * 2000, 'b', 'cc' * 30]
+    assert cols['tick'].tolist() == [0, 1, 2]

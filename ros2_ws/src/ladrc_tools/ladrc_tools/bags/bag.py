@@ -1102,7 +1102,8 @@ class _Decoder:
         packer, names = self.packer, self.names
         stamps = (np.concatenate([p[0] for p in parts]) if len(parts) != 1 else parts[0][0])
         cols: dict[str, Any] = {}
-        arrays = [p[1] for p in parts if isinstance(p[1], np.ndarray)]
+        arrays = [p[1] for p in parts if isinstance(p[1], np.ndarray)
+                  and packer is not None and p[1].shape[1] == packer.dtype.itemsize]
         if packer is not None and len(arrays) == len(parts):
             cols = packer.unpack_rows(arrays[0] if len(arrays) == 1 else np.concatenate(arrays),
                                       names)
