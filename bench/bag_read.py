@@ -59,13 +59,11 @@ def main() -> None:
     with open_bag(bag) as b:
         wanted = {t: None for t in b.topics}
         n = sum(b.message_counts.values())
-        indexed = b._indexes()
-        for ix in indexed or ():
-            ix.close()
+        indexed = b._indexed_files()
         t0 = time.perf_counter()
         fast = b.read_topics(wanted)
         t1 = time.perf_counter()
-        b._indexes = lambda: None  # message by message
+        b._indexed_files = lambda: None  # message by message
         slow = b.read_topics(wanted)
         t2 = time.perf_counter()
     same = all(fast[t].keys() == slow[t].keys() and all(

@@ -416,9 +416,9 @@ def test_indexed_reader_equals_the_message_by_message_reader(tmp_path, compressi
             if i % 1000 == 999:
                 w._mcap.flush()  # end the chunk: several chunks
     with open_bag(path) as b:
-        assert b._indexes() is not None
+        assert b._indexed_files() is not None
         fast = b.read_topics({'follow/status': None, 'axis/velocity_command': None})
-        b._indexes = lambda: None
+        b._indexed_files = lambda: None
         slow = b.read_topics({'follow/status': None, 'axis/velocity_command': None})
     for topic in fast:
         assert fast[topic].keys() == slow[topic].keys()
@@ -445,7 +445,7 @@ def test_time_slices_hold_consecutive_bag_time(tmp_path, monkeypatch, indexed):
     monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 1000)
     with open_bag(path) as b:
         if not indexed:
-            b._indexes = lambda: None
+            b._indexed_files = lambda: None
         parts = list(b.stream({'follow/status': ['tick'], 'sim/truth': ['seq']}))
     assert len(parts) >= 4
     ends = [max(c['timestamp_ns'][-1] for c in p.values()) for p in parts]
@@ -500,7 +500,7 @@ def test_report_in_small_slices_equals_one_slice(run_bag, tmp_path, monkeypatch)
     assert ladrc(['report', str(path), '-o', str(tmp_path / 'one'), '-q']) == 0
     monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 333)
     with open_bag(path) as b:
-        b._indexes = lambda: None  # message by message: many slices
+        b._indexed_files = lambda: None  # message by message: many slices
         from ladrc_tools.offline.report import analyse
 
         sliced, series = analyse(b)
@@ -571,7 +571,35 @@ def test_messages_of_one_topic_with_other_sizes_in_other_chunks(tmp_path):
             w.write('follow/events', i, msg)
             w._mcap.flush()  # one chunk each
     with open_bag(path) as b:
-        assert b._indexes() is not None
+        assert b._indexed_files() is not None
         cols = b.columns('follow/events')
     assert cols['text'].tolist() == ['a' * 2000, 'b', 'cc' * 30]
     assert cols['tick'].tolist() == [0, 1, 2]
+
+
+def test_report_of_a_bag_that_starts_idle_for_longer_than_a_slice(tmp_path, monkeypatch):
+    """No target while IDLE, even when the first non-IDLE tick is many slices in."""
+    from ladrc_tools.offline.report import analyse
+
+    n = 4000
+    tick = np.arange(n)
+    t = tick * 5e-4
+    state = np.where(tick < 2000, 0, 4)
+    gap = np.where(tick < 2000, 1.0, 1.0 + 2.0 * np.exp(-(t - 1.0) / 0.05))
+    rows = RowPacker('ladrc_msgs/msg/FollowStatus').pack(n, {
+        'tick': tick, 'stamp_s': t, 'state': state, 'target_gap_mm': np.full(n, 1.0),
+        'gap_mm': gap, 'period_us': np.full(n, 500.0)})
+    path = tmp_path / 'bag'
+    with BagWriter(path, compression='none') as w:
+        for i in range(n):
+            w.write_raw('follow/status', int(round(t[i] * 1e9)), rows[i])
+
+    def metrics(chunk: int) -> dict:
+        monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', chunk)
+        with open_bag(path) as b:
+            b._indexed_files = lambda: None  # message by message: slices of `chunk`
+            return analyse(b)[0]['metrics']
+    one, sliced = metrics(65536), metrics(500)
+    assert one['followed_at_s'] > 1.0  # the IDLE second has no target
+    for k, v in one.items():
+        assert sliced[k] == pytest.approx(v, rel=1e-9, nan_ok=True), k

@@ -50,7 +50,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 import yaml
 
 from .mcap_file import McapFileWriter, McapScan, is_complete
-from .mcap_index import ChannelRows, McapIndex, open_index
+from .mcap_index import ChannelRows, open_index
 from .typestore import ladrc_typestore
 
 BAG_VERSION = 9  # rosbag2 metadata version written by Jazzy
@@ -952,23 +952,31 @@ class Bag:
         def slice_() -> dict[str, dict[str, np.ndarray]]:
             return {names[n]: d.decode() for n, d in decoders.items() if d.n}
 
-        indexes = self._indexes() if decoders else None
+        files = self._indexed_files() if decoders else None
         try:
-            if indexes is not None:
-                total = sum(ix.bytes_total for ix in indexes)
+            if files is not None:
+                total = sum(f.stat().st_size for f in files)
                 done = 0
-                for ix in indexes:
-                    ids = {ix.channels[n].channel_id: n for n in decoders if n in ix.channels}
-                    for nbytes, rows in ix.read(set(ids)):
-                        done += nbytes
-                        for cid, r in rows.items():
-                            decoders[ids[cid]].add_rows(r)
-                            pending += len(r.log_time_ns)
-                        if pending >= size:
-                            yield slice_()
-                            pending = 0
-                            if progress is not None:
-                                progress(done, total)
+                for f in files:  # one file open at a time
+                    ix = open_index(f)
+                    if ix is None:
+                        raise BagError(f'{f}: its MCAP index became unreadable')
+                    try:
+                        ids = {ix.channels[n].channel_id: n for n in decoders
+                               if n in ix.channels}
+                        for nbytes, rows in ix.read(set(ids)):
+                            done += nbytes
+                            for cid, r in rows.items():
+                                if len(r.log_time_ns):
+                                    decoders[ids[cid]].add_rows(r)
+                                    pending += len(r.log_time_ns)
+                            if pending >= size:
+                                yield slice_()
+                                pending = 0
+                                if progress is not None:
+                                    progress(done, total)
+                    finally:
+                        ix.close()
             else:
                 conns = [c for c in self.reader.connections if c.topic in decoders]
                 total = sum(self.message_counts.get(n, 0) for n in decoders)
@@ -980,31 +988,35 @@ class Bag:
                         pending = 0
                         if progress is not None:
                             progress(i, total)
+            if pending:
+                yield slice_()
         except BagError:
             raise
-        except Exception as exc:  # rosbags, mcap and numpy raise various errors on damage
+        except Exception as exc:  # rosbags, mcap, numpy and the OS raise various errors
             raise BagError(f'{self.path}: cannot read the bag: {_one_line(exc)}') from None
-        finally:
-            for ix in indexes or ():
-                ix.close()
-        if pending:
-            yield slice_()
         if progress is not None:
             progress(1, 1)
 
-    def _indexes(self) -> list[McapIndex] | None:
-        """Open the bag's MCAP files for indexed reading; None if one cannot be."""
+    def _indexed_files(self) -> list[Path] | None:
+        """Return the bag's MCAP files if each can be read through its indexes, in time order.
+
+        Each file is opened and closed in turn (a bag split per minute has 1 440 files a
+        day); None sends the caller to the message-by-message reader.
+        """
         if not isinstance(self.reader, AnyReader) or self._storage != 'mcap' or not self._files:
             return None
-        out: list[McapIndex] = []
+        end = -1
         for f in self._files:
             ix = open_index(f)
             if ix is None:
-                for o in out:
-                    o.close()
                 return None
-            out.append(ix)
-        return out
+            span = ix.span_ns
+            ix.close()
+            if span is not None:
+                if span[0] < end:
+                    return None  # files interleave in time: only a merging reader orders them
+                end = span[1]
+        return list(self._files)
 
     def _slow_columns(self, msgtype: str, datas: list[bytes],
                       names: Iterable[str] | None) -> dict[str, list]:
@@ -1085,6 +1097,8 @@ class _Decoder:
 
     def add_rows(self, rows: ChannelRows) -> int:
         """Queue one chunk's messages of this topic; return the number queued."""
+        if not len(rows.log_time_ns):
+            return self.n
         self._close_batch()
         self.parts.append((rows.log_time_ns, rows.rows))
         self.n += len(rows.log_time_ns)

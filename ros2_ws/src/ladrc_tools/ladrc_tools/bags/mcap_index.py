@@ -73,6 +73,8 @@ class McapIndex:
         self.chunks = sorted(summary.chunk_indexes,  # type: ignore[attr-defined]
                              key=lambda c: (c.message_start_time, c.chunk_start_offset))
         self.bytes_total = sum(c.chunk_length + c.message_index_length for c in self.chunks)
+        self.span_ns = ((self.chunks[0].message_start_time,
+                         max(c.message_end_time for c in self.chunks)) if self.chunks else None)
 
     def close(self) -> None:
         """Close the file."""
@@ -166,26 +168,33 @@ def _channel_rows(records: bytes, entries: np.ndarray) -> ChannelRows:
 
 
 def open_index(path: Path) -> McapIndex | None:
-    """Open ``path`` for indexed reading; None when it lacks what that needs (docstring)."""
+    """Open ``path`` for indexed reading; None when it lacks what that needs (docstring).
+
+    Needed: a summary with a chunk index per chunk, a message index of every channel in
+    every chunk, chunks that do not overlap in time, one channel per topic, each with its
+    schema.
+    """
     from mcap.reader import make_reader
 
-    f = open(path, 'rb')  # noqa: SIM115 (closed by McapIndex.close or below)
+    try:
+        f = open(path, 'rb')  # noqa: SIM115 (closed by McapIndex.close or below)
+    except OSError:
+        return None
     try:
         summary = make_reader(f).get_summary()
     except Exception:  # a damaged file: the message-by-message reader says what is wrong
+        summary = None
+    ok = summary is not None and bool(summary.chunk_indexes)
+    if ok:
+        chunks = sorted(summary.chunk_indexes, key=lambda c: c.message_start_time)
+        topics = [c.topic for c in summary.channels.values()]
+        ok = (all(c.message_index_offsets for c in chunks)
+              and len(set(topics)) == len(topics)
+              and all(c.schema_id in summary.schemas for c in summary.channels.values())
+              # chunks interleaving in time: only a merging reader orders them
+              and not any(b.message_start_time < a.message_end_time
+                          for a, b in zip(chunks, chunks[1:], strict=False)))
+    if not ok:
         f.close()
-        return None
-    if (summary is None or not summary.chunk_indexes
-            or any(not c.message_index_offsets and c.message_index_length
-                   for c in summary.chunk_indexes)
-            or sum(summary.statistics.channel_message_counts.values()
-                   if summary.statistics else ()) and not any(
-                c.message_index_offsets for c in summary.chunk_indexes)):
-        f.close()
-        return None
-    chunks = sorted(summary.chunk_indexes, key=lambda c: c.message_start_time)
-    if any(b.message_start_time < a.message_end_time
-           for a, b in zip(chunks, chunks[1:], strict=False)):
-        f.close()  # chunks interleave in time: only a merging reader orders them
         return None
     return McapIndex(path, f, summary)

@@ -232,7 +232,7 @@ def _first_text(bag: Bag, topic: str) -> str | None:
     return None
 
 
-CMD_FIELDS = ('seq', 'velocity_mm_s', 'enable')
+CMD_FIELDS = ('seq', 'velocity_mm_s', 'enable')  # + timestamp_ns (bag time), always read
 
 
 def _inputs(st: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -264,12 +264,19 @@ def _join_commands(st: dict[str, np.ndarray], cmd: dict[str, np.ndarray]) -> Rec
     return RecordedBatch(ticks, _inputs(st), st, command, enable, present)
 
 
+HOLD_NS = 1_000_000_000
+"""Bag time a status tick waits for its command (commands may arrive late or out of order)."""
+
+
 def _stream_batches(path: Path, progress: Callable[[int, int], None] | None
                     ) -> Iterator[RecordedBatch]:
     """Status ticks joined with their commands, read from the bag a slice at a time.
 
-    A status tick waits until a command at least as late has been read (or the bag ends, or
-    four batches wait), so the join is that of the whole run while the memory is a slice's.
+    A status tick is joined once :data:`HOLD_NS` of bag time has been read after it (or the
+    bag ends): a command received up to 1 s after its status, in any order, is found, and of
+    duplicates the last received wins, as in a join over the whole run. Commands are kept
+    from :data:`HOLD_NS` before the oldest waiting tick on, so the memory is that of a few
+    slices.
     """
     with open_bag(path) as bag:
         has_cmd = bag.has('axis/velocity_command')
@@ -277,7 +284,7 @@ def _stream_batches(path: Path, progress: Callable[[int, int], None] | None
         if has_cmd:
             wanted['axis/velocity_command'] = CMD_FIELDS
         cmd = {'seq': np.zeros(0, np.int64), 'velocity_mm_s': np.zeros(0),
-               'enable': np.zeros(0, bool)}
+               'enable': np.zeros(0, bool), 'timestamp_ns': np.zeros(0, np.int64)}
         pending: dict[str, np.ndarray] = {}
 
         def take(k: int) -> RecordedBatch:
@@ -286,29 +293,35 @@ def _stream_batches(path: Path, progress: Callable[[int, int], None] | None
             for c in pending:
                 pending[c] = pending[c][k:]
             batch = _join_commands(st, cmd)
-            if batch.ticks.size:  # commands of later ticks stay for the next batch
-                keep = cmd['seq'] > batch.ticks.max()
+            if pending['tick'].size:  # what the waiting ticks may still need
+                keep = cmd['timestamp_ns'] >= pending['timestamp_ns'][0] - HOLD_NS
                 cmd = {c: v[keep] for c, v in cmd.items()}
             return batch
 
+        latest = 0
         for part in bag.stream(wanted, progress):
             c = part.get('axis/velocity_command')
             if c is not None:
                 cmd = {'seq': np.r_[cmd['seq'], c['seq'].astype(np.int64)],
                        'velocity_mm_s': np.r_[cmd['velocity_mm_s'],
                                               c['velocity_mm_s'].astype(np.float64)],
-                       'enable': np.r_[cmd['enable'], c['enable'].astype(bool)]}
+                       'enable': np.r_[cmd['enable'], c['enable'].astype(bool)],
+                       'timestamp_ns': np.r_[cmd['timestamp_ns'], c['timestamp_ns']]}
+                latest = max(latest, int(c['timestamp_ns'][-1]))
             st = part.get('follow/status')
             if st is not None:
+                latest = max(latest, int(st['timestamp_ns'][-1]))
                 for k, v in st.items():
                     pending[k] = np.concatenate((pending[k], v)) if k in pending else v
             if not pending or pending['tick'].size == 0:
+                if not has_cmd or not cmd['seq'].size:
+                    continue
+                keep = cmd['timestamp_ns'] >= latest - 2 * HOLD_NS
+                cmd = {k: v[keep] for k, v in cmd.items()}
                 continue
-            ticks = pending['tick'].astype(np.int64)
-            k = ticks.size
-            if has_cmd and ticks.size <= 4 * CHUNK_TICKS:
-                late = np.flatnonzero(ticks > (cmd['seq'].max() if cmd['seq'].size else -1))
-                k = int(late[0]) if late.size else ticks.size
+            k = pending['tick'].size
+            if has_cmd:
+                k = int(np.searchsorted(pending['timestamp_ns'], latest - HOLD_NS, 'right'))
             if k:
                 yield take(k)
         if pending and pending['tick'].size:

@@ -64,12 +64,17 @@ REPORT_FIELDS = ('tick', 'stamp_s', 'state', 'target_gap_mm', 'td_x1_mm', 'follo
 TIMING = ('period_us', 'compute_us', 'input_age_us')
 
 
+HOLD_NS = 1_000_000_000
+"""A status row waits at most this much bag time for the truth samples around its stamp."""
+
+
 class _TruthJoin:
     """``sim/truth`` interpolated onto the status stamps, a slice at a time.
 
-    Status rows wait until truth has been read past their stamp (or the bag ends); the truth
-    kept is what the waiting rows can still need (from the sample before them on), so the
-    result is that of ``np.interp`` / ``searchsorted`` over the whole run.
+    Status rows wait until truth has been read past their stamp (at most :data:`HOLD_NS` of
+    bag time, or the bag ends); the truth kept is what the waiting rows can still need (from
+    the sample before them on), so the result is that of ``np.interp`` / ``searchsorted``
+    over the whole run (for status stamps in time order).
     """
 
     def __init__(self) -> None:
@@ -82,13 +87,21 @@ class _TruthJoin:
         self.gap = np.concatenate((self.gap, tr['true_gap_mm']))
         self.collision = np.concatenate((self.collision, tr['collision'].astype(bool)))
 
-    def ready(self, stamp_s: np.ndarray, final: bool) -> int:
-        """How many of the waiting rows (stamps ``stamp_s``) can be joined now."""
-        if final or self.t.size == 0:
-            return stamp_s.size if final else 0
+    def ready(self, stamp_s: np.ndarray) -> int:
+        """How many of the waiting rows (stamps ``stamp_s``) the truth read so far covers."""
+        if self.t.size == 0:
+            return 0
         return int(np.searchsorted(stamp_s, self.t[-1], 'right'))
 
+    def keep_recent(self, seconds: float = 1.0) -> None:
+        """Drop truth older than ``seconds`` before the newest (no status row is waiting)."""
+        if self.t.size > 1:
+            k = max(0, int(np.searchsorted(self.t, self.t[-1] - seconds)) - 1)
+            self.t, self.gap, self.collision = self.t[k:], self.gap[k:], self.collision[k:]
+
     def join(self, stamp_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.t.size == 0:
+            return np.full(stamp_s.size, np.nan), np.zeros(stamp_s.size, dtype=bool)
         gap = np.interp(stamp_s, self.t, self.gap)
         idx = np.clip(np.searchsorted(self.t, stamp_s), 0, self.t.size - 1)
         collision = self.collision[idx]
@@ -104,6 +117,10 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     ONE pass over the bag in time slices (:meth:`Bag.stream`); memory is that of a slice plus
     the accumulators (metrics, timing quantiles, plot envelope), whatever the bag's length.
     The plot series come back decimated (:mod:`.envelope`).
+
+    Whether the controller reports its state (then there is no target while IDLE) is known
+    only at its first non-IDLE tick: until then both readings are accumulated (``plain``:
+    the recorded target; ``idle``: no target while IDLE) and the other is dropped then.
     """
     from ladrc_sim.headless import metrics as M
 
@@ -122,13 +139,13 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     wanted['follow/status'] = REPORT_FIELDS
     wanted['sim/truth'] = ['stamp_s', 'true_gap_mm', 'collision', 'seq']
     truth = _TruthJoin() if bag.count('sim/truth') > 1 else None
-    env = Envelope(n_status)
     timing = {k: Quantiles() for k in TIMING}
     last_seq: dict[str, int] = {}
     lost = {t: 0 for t in SEQ_FIELD if bag.has(t)}
     state_seen = [False]
     pending: dict[str, np.ndarray] = {}
-    acc: list[M.MetricsAccumulator] = []
+    acc: dict[str, M.MetricsAccumulator] = {}
+    env: dict[str, Envelope] = {}
     first: dict[str, float] = {}
     overruns = [0]
     n_done = [0]
@@ -137,22 +154,21 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     def process(st: dict[str, np.ndarray]) -> None:
         if not acc:  # the period: median tick spacing of the first rows
             first['stamp_s'] = float(st['stamp_s'][0])
-            first['h_s'] = float(np.median(np.diff(st['stamp_s'])))
-            acc.append(M.MetricsAccumulator(first['h_s'], v_max_mm_s=v_max or math.inf))
+            h_s = float(np.median(np.diff(st['stamp_s']))) if st['stamp_s'].size > 1 else 0.0
+            if not (math.isfinite(h_s) and h_s > 0.0):
+                raise BagError(f'{bag.path}: follow/status stamps do not advance: no period')
+            first['h_s'] = h_s
+            for name in ('plain', 'idle'):
+                acc[name] = M.MetricsAccumulator(h_s, v_max_mm_s=v_max or math.inf)
+                env[name] = Envelope(n_status)
         t = st['stamp_s'] - first['stamp_s']
         state = st['state'].astype(int)
-        state_seen[0] |= bool(np.any(state != 0))
-        target = st['target_gap_mm'].astype(float)
-        if state_seen[0]:  # a controller that reports its state: no target while IDLE
-            target = np.where(state != 0, target, np.nan)
-        # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold
-        # zeros, which would squash the plots' scales.
-        active = np.isin(state, (3, 4)) if state_seen[0] else np.ones(state.size, bool)
-        series = {'t_s': t, 'gap_mm': st['gap_mm'], 'target_mm': target, 'state': state,
+        if not state_seen[0] and np.any(state != 0):
+            state_seen[0] = True  # a controller that reports its state: no target while IDLE
+            del acc['plain'], env['plain']
+        series = {'t_s': t, 'gap_mm': st['gap_mm'], 'state': state,
                   'followed': st['followed'], 'velocity_mm_s': st['velocity_mm_s'],
                   'u_unlimited_mm_s': st['u_unlimited_mm_s']}
-        for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3'):
-            series[col] = np.where(active, st[col].astype(float), np.nan)
         gap = st['gap_mm'].astype(float)
         collision = np.zeros(t.size, dtype=bool)
         if truth is not None:
@@ -165,20 +181,35 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
             series['true_gap_rate'] = rate
             prev_rate[:] = [float(t[-1]), float(gap[-1])]
         flags = st['limit_flags'].astype(np.int64)
-        acc[0].add(t, gap, target, collision, st['velocity_mm_s'],
-                   {'limit_v': (flags & LIMIT_VELOCITY) != 0,
-                    'limit_a': (flags & LIMIT_ACCELERATION) != 0})
+        limits = {'limit_v': (flags & LIMIT_VELOCITY) != 0,
+                  'limit_a': (flags & LIMIT_ACCELERATION) != 0}
+        for name in acc:
+            target = st['target_gap_mm'].astype(float)
+            # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold
+            # zeros, which would squash the plots' scales.
+            active = np.ones(state.size, bool)
+            if name == 'idle':
+                target = np.where(state != 0, target, np.nan)
+                active = np.isin(state, (3, 4))
+            acc[name].add(t, gap, target, collision, st['velocity_mm_s'], limits)
+            env[name].add({**series, 'target_mm': target, **{
+                col: np.where(active, st[col].astype(float), np.nan)
+                for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3')}})
         for k in TIMING:
             timing[k].add(st[k])
         overruns[0] += int(np.count_nonzero(st['overrun']))
-        env.add(series)
         n_done[0] += t.size
 
-    def flush(final: bool) -> None:
+    def flush(final: bool, latest_ns: int) -> None:
         if not pending or pending['tick'].size == 0:
+            if truth is not None:
+                truth.keep_recent()
             return
-        k = (pending['tick'].size if truth is None
-             else truth.ready(pending['stamp_s'], final))
+        k = pending['tick'].size
+        if truth is not None and not final:
+            # covered by the truth read so far, or waited HOLD_NS of bag time
+            k = max(truth.ready(pending['stamp_s']), int(np.searchsorted(
+                pending['timestamp_ns'], latest_ns - HOLD_NS, 'right')))
         if not acc and k < 2 and not final:
             return  # the period needs two rows
         if k:
@@ -187,8 +218,11 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
                 pending[c] = pending[c][k:]
 
     show = stderr_progress('reading the bag') if progress else None
+    latest_ns = 0
     for part in bag.stream(wanted, progress=show):
         for topic, cols in part.items():
+            if cols['timestamp_ns'].size:
+                latest_ns = max(latest_ns, int(cols['timestamp_ns'][-1]))
             if topic in SEQ_FIELD:
                 seq = cols[SEQ_FIELD[topic]].astype(np.int64)
                 if topic in last_seq:
@@ -200,15 +234,16 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
             truth.add(part['sim/truth'])
         st = part.get('follow/status')
         if st is not None:
-            for c in REPORT_FIELDS:
+            for c in REPORT_FIELDS + ('timestamp_ns',):
                 pending[c] = np.concatenate((pending[c], st[c])) if c in pending else st[c]
-        flush(False)
-    flush(True)
-    metrics = acc[0].result() if acc else None
-    if metrics is None or n_done[0] < 2:
+        flush(False, latest_ns)
+    flush(True, latest_ns)
+    if not acc or n_done[0] < 2:
         raise BagError(f'{bag.path}: follow/status holds {n_done[0]} readable message(s); '
                        'a report needs a run')
-    series = env.result()
+    name = 'idle' if state_seen[0] else 'plain'
+    metrics = acc[name].result()
+    series = env[name].result()
     recording = None
     rec_file = bag.path / 'recording.json' if bag.path.is_dir() else None
     if rec_file is not None and rec_file.is_file():
