@@ -1,4 +1,4 @@
-"""``ladrc``: the user CLI (simulate, replay, report, export, suite, params).
+"""``ladrc``: the user CLI (simulate, replay, report, export, suite, params, analyze).
 
 Every subcommand is one entry of :data:`COMMANDS` (name -> (help, add-arguments, run)); add a
 subcommand by adding an entry. Bad input (missing file, truncated/foreign bag, missing topic,
@@ -295,6 +295,51 @@ def _run_replay(a: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+# ---- analyze ------------------------------------------------------------------------------
+def _add_analyze(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--params', help='controller parameter YAML (default: built-in defaults)')
+    p.add_argument('--controller', choices=('ladrc', 'pid'),
+                   help='loop to analyse (default: follow.controller of the set)')
+    p.add_argument('--b0', type=float, default=1.0,
+                   help='axis gain, mm/s per mm/s of command [1, the simulator]')
+    p.add_argument('--t1-ms', type=float, default=8.0,
+                   help='axis velocity-loop time constant [8 ms, the simulator]')
+    p.add_argument('--dead-time-ticks', type=int, default=0,
+                   help='whole ticks of command delay [0, the simulator]')
+    p.add_argument('--lag-ms', type=float, default=0.0,
+                   help='sensor first-order lag [0, the simulator]')
+    p.add_argument('-o', '--output', default='analysis',
+                   help='output folder [analysis]; never overwritten')
+
+
+def _run_analyze(a: argparse.Namespace) -> int:
+    from ladrc_follow.control.loop import AxisModel
+    from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
+
+    from .offline.analyze import write_analysis
+    from .offline.report import strict_json
+
+    try:
+        params = load_params(a.params) if a.params else ControllerParams()
+    except ParameterError as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    if not (0.0 < a.b0 <= 1e5 and 0.0 < a.t1_ms <= 1e4 and 0 <= a.dead_time_ticks <= 1000
+            and 0.0 <= a.lag_ms <= 1e4):
+        raise CliError('axis model out of range: 0 < b0 <= 1e5, 0 < t1-ms <= 1e4, '
+                       '0 <= dead-time-ticks <= 1000, 0 <= lag-ms <= 1e4')
+    axis = AxisModel(a.b0, a.t1_ms * 1e-3, a.dead_time_ticks, a.lag_ms * 1e-3)
+    try:
+        out, fig = write_analysis(params, a.params or 'built-in defaults', a.controller, axis,
+                                  Path(a.output))
+    except FileExistsError as exc:
+        raise CliError(str(exc)) from None
+    except ValueError as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    print(f'written: {out}/analysis.md, analysis.json, bode.png')
+    print(json.dumps(strict_json({'output': str(out), **fig})))
+    return 0
+
+
 # ---- params -------------------------------------------------------------------------------
 PARAMETERS_DOC_HEAD = """# Parameters
 
@@ -358,6 +403,9 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
                _add_replay, _run_replay),
     'params': ('the controller parameters: default file, docs table, or check a file',
                _add_params, _run_params),
+    'analyze': ('the linear loop of a parameter set around the axis model: margins, Ms, '
+                'bandwidth, Bode plots (analysis.md, analysis.json, bode.png)',
+                _add_analyze, _run_analyze),
     'suite': ('run the scenario library for PID and LADRC variants; comparison table '
               "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
               _add_suite, _run_suite),

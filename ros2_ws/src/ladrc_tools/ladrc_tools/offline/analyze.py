@@ -1,0 +1,128 @@
+"""``ladrc analyze``: the linear follow loop of a parameter set, in the frequency domain.
+
+The loop is :mod:`ladrc_follow.control.loop`'s: the controller's own tick, linearized, around
+the axis model ``b0/(s(T1 s + 1))`` with dead time and sensor lag, at the controller's period.
+Writes ``bode.png`` (loop gain L, S and T, sheet-to-gap), ``analysis.md`` and
+``analysis.json`` into the output folder (built under a temporary name, renamed when
+complete).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+import shutil
+from typing import Any
+
+from ladrc_follow.control.loop import AxisModel, LoopAnalysis, analyse_params
+from ladrc_follow.control.params import ControllerParams
+import numpy as np
+
+from .report import strict_json
+
+
+def figures(an: LoopAnalysis) -> dict[str, Any]:
+    """Return the loop's figures, rounded for reading (JSON)."""
+    out = {}
+    for k, v in an.figures().items():
+        out[k] = round(v, 4) if isinstance(v, float) and math.isfinite(v) else v
+    return out
+
+
+def _db(x: np.ndarray) -> np.ndarray:
+    with np.errstate(divide='ignore'):
+        return 20 * np.log10(np.abs(x))
+
+
+def plot(an: LoopAnalysis, path: Path, title: str) -> None:
+    """Bode plots of L, S, T and the sheet-to-gap response into ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    f = an.f_hz
+    fig, ax = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
+    ax[0].semilogx(f, _db(an.loop), label='|L| (loop gain at the axis input)')
+    ax[0].axhline(0, color='k', lw=0.6)
+    if math.isfinite(an.crossover_hz):
+        ax[0].axvline(an.crossover_hz, color='C0', ls=':', lw=0.8)
+    ax[0].set_ylabel('dB')
+    ax[0].set_ylim(max(-80, float(np.nanmin(_db(an.loop)))), 80)
+    ax[0].legend(loc='upper right', fontsize=8)
+    ax[0].set_title(title)
+    ph = np.degrees(np.unwrap(np.angle(an.loop)))
+    ax[1].semilogx(f, ph, color='C1', label='∠L')
+    for k in range(-4, 2):
+        ax[1].axhline(-180 + 360 * k, color='k', lw=0.5, ls='--')
+    ax[1].set_ylabel('phase [deg]')
+    ax[1].set_ylim(max(-720, float(np.nanmin(ph)) - 20), min(360, float(np.nanmax(ph)) + 20))
+    ax[1].legend(loc='upper right', fontsize=8)
+    ax[2].semilogx(f, _db(an.sensitivity), label='|S| = |1/(1+L)|')
+    ax[2].semilogx(f, _db(an.complementary), label='|T| = |L/(1+L)|')
+    ax[2].semilogx(f, _db(an.sheet_to_gap), ls='--', label='|sheet → gap|')
+    ax[2].axhline(-3, color='k', lw=0.5, ls=':')
+    ax[2].set_ylim(-60, 15)
+    ax[2].set_ylabel('dB')
+    ax[2].set_xlabel('f [Hz]')
+    ax[2].legend(loc='lower right', fontsize=8)
+    for a in ax:
+        a.grid(True, which='both', alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(fig: dict[str, Any], params_source: str, mode: str, axis: AxisModel) -> str:
+    """Return the summary page (Markdown)."""
+    def f(v: Any) -> str:
+        return 'n/a' if v is None or (isinstance(v, float) and not math.isfinite(v)) else str(v)
+
+    rows = [('closed loop stable', fig['stable']),
+            ('spectral radius of the closed loop', fig['spectral_radius']),
+            ('phase margin [deg]', fig['phase_margin_deg']),
+            ('gain crossover [Hz]', fig['crossover_hz']),
+            ('delay margin [ms]', fig['delay_margin_ms']),
+            ('gain margin [dB]', fig['gain_margin_db']),
+            ('phase crossover [Hz]', fig['gain_margin_hz']),
+            ('lower gain margin [dB]', fig['lower_gain_margin_db']),
+            ('Ms = max |S|', fig['ms_peak']),
+            ('at [Hz]', fig['ms_hz']),
+            ('bandwidth, |T| = −3 dB [Hz]', fig['bandwidth_hz'])]
+    lines = ['# Loop analysis', '',
+             f'Controller: {mode} ({params_source}); axis b0 = {axis.b0:g}, T1 = '
+             f'{axis.t1_s * 1e3:g} ms, dead time {axis.dead_ticks} tick(s), sensor lag '
+             f'{axis.lag_s * 1e3:g} ms. The loop is linear: the TD at rest, the limits '
+             'inactive (small signals), the Kalman filter at its steady-state gain.', '',
+             '| figure | value |', '| --- | --- |']
+    lines += [f'| {k} | {f(v)} |' for k, v in rows]
+    lines += ['', '![bode](bode.png)', '']
+    return '\n'.join(lines)
+
+
+def write_analysis(params: ControllerParams, params_source: str, mode: str | None,
+                   axis: AxisModel, out_dir: Path) -> tuple[Path, dict[str, Any]]:
+    """Analyse and write ``out_dir``; return it and the figures."""
+    mode = mode or params.follow.controller
+    an = analyse_params(params, axis, mode)
+    fig = figures(an)
+    if out_dir.exists():
+        raise FileExistsError(f'{out_dir} exists already: outputs are never overwritten')
+    tmp = out_dir.with_name(f'.{out_dir.name}.partial')
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.mkdir(parents=True)
+        plot(an, tmp / 'bode.png', f'{mode}: PM {fig["phase_margin_deg"]}°, '
+             f'GM {fig["gain_margin_db"]} dB, Ms {fig["ms_peak"]}')
+        (tmp / 'analysis.md').write_text(markdown(fig, params_source, mode, axis),
+                                         encoding='utf-8')
+        (tmp / 'analysis.json').write_text(json.dumps(strict_json(
+            {'controller': mode, 'params': params_source, 'axis': vars(axis), **fig}),
+            indent=1) + '\n', encoding='utf-8')
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out_dir, fig
