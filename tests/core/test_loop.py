@@ -86,18 +86,37 @@ def test_controller_is_linearized_from_its_own_tick():
         assert core.step(w[k, 0], w[k, 1], 0.0) == pytest.approx(u_ss, rel=1e-6, abs=1e-12)
 
 
-@pytest.mark.parametrize('mode', ['ladrc', 'pid'])
-def test_analysis_agrees_with_the_simulated_sheet_sine(mode):
+def _order2_zoh_kalman() -> ControllerParams:
+    from dataclasses import replace
+
+    from ladrc_follow.control.params import ESOParams, KalmanParams, LawParams
+
+    return replace(ControllerParams(),
+                   eso=ESOParams(order=2, discretization='zoh', gains='bandwidth',
+                                 w0_rad_s=300.0, b0=1.0 / 0.008),
+                   law=LawParams(form=3, gains='bandwidth', wc_rad_s=40.0),
+                   kalman=KalmanParams(enabled=True))
+
+
+@pytest.mark.parametrize('mode, variant', [('ladrc', 'shipped'), ('ladrc', 'order2'),
+                                           ('ladrc', 'compensator'), ('pid', 'shipped')])
+def test_analysis_agrees_with_the_simulated_sheet_sine(mode, variant):
     """Sheet sines in the headless simulator: nozzle/sheet gain and phase as analysed.
 
     A small sine (5 um: no limit is reached), no noise, no quantization, not machining (no
-    suppression); the last whole periods of each run are projected on the sine.
+    suppression); the last whole periods of each run are projected on the sine. The shipped
+    LADRC (order 1, Euler), an order-2 ZOH observer with the Kalman fusion, the shipped LADRC
+    with the paper's eq. 22 compensator (which fails the stability gate), and the PID.
     """
+    from dataclasses import replace
+
     from ladrc_follow.control.follow import FollowController
     from ladrc_sim.headless.runner import run
     from ladrc_sim.headless.scenario import scenario_from_dict
 
-    p = ControllerParams()
+    p = {'shipped': ControllerParams(), 'order2': _order2_zoh_kalman(),
+         'compensator': replace(ControllerParams(), eso=replace(ControllerParams().eso,
+                                                                compensator=True))}[variant]
     freqs = [2.0, 8.0, 25.0]
     an = analyse_params(p, AxisModel(), mode, f_hz=freqs)
     for f, t_expected in zip(freqs, an.sheet_to_nozzle, strict=True):
@@ -139,3 +158,39 @@ def test_axis_model_is_the_simulators_discretization():
             assert float(ss.c[2] @ x) == pytest.approx(ax.position_mm, abs=1e-12)
             x = ss.a @ x + ss.b @ np.array([u, 0.0])
             ax.step(u)
+
+
+def test_stability_gate_rejects_with_the_numbers_and_the_cli_too(tmp_path, capsys):
+    """A valid set whose loop falls short is rejected where sets are loaded, with the numbers.
+
+    Replay does not gate (it reproduces what ran); ``stability.gate: false`` switches it off;
+    ``ladrc analyze`` takes any set and says why the gate refuses it.
+    """
+    from ladrc_follow.control.params import ParameterError, dump_params, params_from_dict
+    from ladrc_tools.cli import main as ladrc
+
+    assert params_from_dict({}).stability.gate  # the shipped set passes
+    with pytest.raises(ParameterError) as exc:
+        params_from_dict({'law': {'kp': 60.0}})
+    text = ' '.join(exc.value.reasons)
+    assert 'stability gate: the ladrc loop has a phase margin of 19.9° < 30°' in text
+    assert 'sensitivity peak Ms of 3.17 > 2.5' in text
+    with pytest.raises(ParameterError, match='unstable'):
+        params_from_dict({'stability': {'axis_dead_time_ticks': 30}})
+    assert params_from_dict({'law': {'kp': 60.0}}, gate=False).law.kp == 60.0
+    assert params_from_dict({'law': {'kp': 60.0}, 'stability': {'gate': False}}).law.kp == 60.0
+    bad = params_from_dict({'law': {'kp': 60.0}}, gate=False)
+    path = tmp_path / 'p.yaml'
+    path.write_text(dump_params(bad))
+    for args in (['params', '--check', str(path)], ['simulate', 'step', '--params', str(path)]):
+        assert ladrc(args) == 2, args
+        err = capsys.readouterr().err
+        assert 'stability gate' in err and err.count('\n') == 1, err
+    # analyze takes it, and says why the gate refuses it
+    assert ladrc(['analyze', '--params', str(path), '-o', str(tmp_path / 'a')]) == 0
+    import json
+
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line['gate_passed'] is False and line['phase_margin_deg'] == pytest.approx(19.9,
+                                                                                      abs=0.1)
+    assert 'stability gate' in (tmp_path / 'a' / 'analysis.md').read_text()

@@ -114,6 +114,11 @@ def test_follow_ladrc_parameters_and_stop(axis):
     assert 'b0' in bad.reason
     assert _get_param(probe, 'law.kp') == pytest.approx(kp * 1.2)
     assert _get_param(probe, 'eso.b0') != 0.0
+    # ... and a valid one whose loop fails the stability gate too, with its numbers.
+    unstable = _set_param(probe, 'law.kp', 60.0)
+    assert not unstable.successful
+    assert 'stability gate' in unstable.reason and 'phase margin' in unstable.reason
+    assert _get_param(probe, 'law.kp') == pytest.approx(kp * 1.2)
 
     # Stop: zero velocity, drive enable off, IDLE.
     assert probe.call(StopFollow, 'follow/stop', StopFollow.Request()).accepted

@@ -38,6 +38,7 @@ from .interp import InterpParams
 from .kalman import KalmanParams
 from .pid import PIDParams
 from .schema import entries, field_problems, param
+from .stability import StabilityParams, stability_reasons
 from .td import TDA_FIRMWARE, TDB_FIRMWARE, TDParams
 
 __all__ = [
@@ -153,6 +154,7 @@ class ControllerParams:
     interp: InterpParams = field(default_factory=InterpParams)
     follow: FollowParams = field(default_factory=FollowParams)
     edge: EdgeParams = field(default_factory=EdgeParams)
+    stability: StabilityParams = field(default_factory=StabilityParams)
 
     def replace(self, **changes: Any) -> ControllerParams:
         """Return a copy with sections or values replaced (dataclasses.replace)."""
@@ -302,11 +304,13 @@ def _unwrap_ros(d: dict, node_name: str | None) -> dict:
 
 
 def params_from_dict(d: dict | None, node_name: str | None = None,
-                     validate_set: bool = True) -> ControllerParams:
+                     validate_set: bool = True, gate: bool = True) -> ControllerParams:
     """Build :class:`ControllerParams` from a (partial) nested, dotted or ROS-layout dict.
 
     Missing values keep their defaults. Raises :class:`ParameterError` listing
-    unknown keys, wrong types and (with ``validate_set``) every validation reason.
+    unknown keys, wrong types and (with ``validate_set``) every validation reason, then
+    (with ``gate``, and ``stability.gate`` on) why the set's loops fail the stability gate
+    (:mod:`.stability`). Replay passes ``gate=False``: it reproduces recorded sets.
     """
     if d is None:
         d = {}
@@ -319,6 +323,14 @@ def params_from_dict(d: dict | None, node_name: str | None = None,
         raise ParameterError(errors)
     if validate_set:
         check(p)
+        if gate:
+            try:
+                reasons = stability_reasons(p)
+            except Exception as exc:  # noqa: BLE001 - a set the analysis cannot take
+                reasons = [f'stability gate: the loop could not be analysed: '
+                           f'{type(exc).__name__}: {exc}']
+            if reasons:
+                raise ParameterError(reasons)
     return p
 
 
@@ -383,8 +395,12 @@ def parameter_file(p: ControllerParams | None = None) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def load_params(path: str | Path, node_name: str | None = None) -> ControllerParams:
-    """Load and validate a parameter file (plain or ROS 2 layout)."""
+def load_params(path: str | Path, node_name: str | None = None,
+                gate: bool = True) -> ControllerParams:
+    """Load and validate a parameter file (plain or ROS 2 layout).
+
+    ``gate``: the stability gate, as :func:`params_from_dict`.
+    """
     path = Path(path)
     try:
         text = path.read_text()
@@ -394,7 +410,7 @@ def load_params(path: str | Path, node_name: str | None = None) -> ControllerPar
         d = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ParameterError([f'{path} is not valid YAML: {exc}']) from exc
-    return params_from_dict(d, node_name=node_name)
+    return params_from_dict(d, node_name=node_name, gate=gate)
 
 
 # ---------------------------------------------------------------------------

@@ -98,16 +98,25 @@ def markdown(fig: dict[str, Any], params_source: str, mode: str, axis: AxisModel
              'inactive (small signals), the Kalman filter at its steady-state gain.', '',
              '| figure | value |', '| --- | --- |']
     lines += [f'| {k} | {f(v)} |' for k, v in rows]
-    lines += ['', '![bode](bode.png)', '']
+    gate = ('passes' if fig['gate_passed'] else 'fails:\n\n' + '\n'.join(
+        f'- {r}' for r in fig['gate_reasons']))
+    lines += ['', f'Stability gate (the set’s `stability.*` minima and axis model): {gate}',
+              '', '![bode](bode.png)', '']
     return '\n'.join(lines)
 
 
 def write_analysis(params: ControllerParams, params_source: str, mode: str | None,
                    axis: AxisModel, out_dir: Path) -> tuple[Path, dict[str, Any]]:
     """Analyse and write ``out_dir``; return it and the figures."""
+    from ladrc_follow.control.stability import stability_reasons
+
     mode = mode or params.follow.controller
     an = analyse_params(params, axis, mode)
     fig = figures(an)
+    # the gate's verdict on the set as it would go live (its own axis model: stability.*)
+    reasons = stability_reasons(params)
+    fig['gate_passed'] = not reasons
+    fig['gate_reasons'] = reasons
     if out_dir.exists():
         raise FileExistsError(f'{out_dir} exists already: outputs are never overwritten')
     tmp = out_dir.with_name(f'.{out_dir.name}.partial')

@@ -204,7 +204,7 @@ def _state_name(state: int) -> str:
 def _parse_params(text: str, what: str) -> ControllerParams:
     try:
         data = yaml.safe_load(text)
-        return params_from_dict(data)
+        return params_from_dict(data, gate=False)  # reproduce what ran
     except (yaml.YAMLError, ParameterError) as exc:
         raise BagError(f'the parameter set of {what} is unusable: '
                        f'{" ".join(str(exc).split())}') from None
@@ -466,7 +466,7 @@ def _with(base: ControllerParams, overrides: Mapping[str, Any], what: str) -> Co
                           '`ros2 param list`, e.g. law.kp, eso.w0_rad_s)')
     flat.update(overrides)
     try:
-        return params_from_dict(flat)
+        return params_from_dict(flat, gate=False)  # offline, open loop: nothing goes live
     except ParameterError as exc:
         raise ReplayError(f'{what}: {"; ".join(exc.reasons)}') from None
 
@@ -488,7 +488,7 @@ def whatif_params(rec: Recording, params_file: str | Path | None = None,
         except yaml.YAMLError:
             raise ReplayError(f'--params {p}: not valid YAML') from None
         try:
-            base = params_from_dict(data)
+            base = params_from_dict(data, gate=False)
         except ParameterError as exc:
             raise ReplayError(f'--params {p}: {"; ".join(exc.reasons)}') from None
     out = _with(base, dict(overrides or {}), '--set') if overrides else base
@@ -602,7 +602,7 @@ class Replay:
                    recorded_set: ControllerParams) -> ControllerParams:
         """Apply a recorded PARAMETERS event; return the recorded set now in force."""
         try:
-            new_set = params_from_dict(yaml.safe_load(ev.text))
+            new_set = params_from_dict(yaml.safe_load(ev.text), gate=False)
         except (yaml.YAMLError, ParameterError) as exc:
             self.notes.append(f'tick {ev.tick}: recorded parameter set unusable '
                               f'({" ".join(str(exc).split())[:120]}); not applied')
