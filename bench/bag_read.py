@@ -29,20 +29,17 @@ from ladrc_tools.bags.bag import open_bag  # noqa: E402
 
 
 def _headless_bag(path: Path, seconds: float) -> None:
+    from bag_scale import shift_scenario  # the same shift as the other bag benches
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import ControllerParams, dump_params
     from ladrc_sim.headless.runner import run
     from ladrc_sim.headless.scenario import scenario_from_dict
     from ladrc_tools.bags.bag import write_run_bag
 
-    sc = scenario_from_dict({
-        'name': 'read_bench', 'duration_s': seconds, 'seed': 3, 'initial_gap_mm': 3.0,
-        'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
-        'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 0.5}]},
-        'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
+    sc = scenario_from_dict(shift_scenario(seconds))
     params = ControllerParams()
     write_run_bag(run(sc, FollowController(params), record_internals=True), path,
-                  dump_params(params), 'name: read_bench\n')
+                  dump_params(params), 'name: shift\n')
 
 
 def main() -> None:

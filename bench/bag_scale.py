@@ -76,6 +76,14 @@ _CHILD = ('import json, sys\n'
           'print(json.dumps({"rc": rc, "rss_kib": hwm[0] if hwm else None}), file=sys.stderr)\n')
 
 
+def shift_scenario(seconds: float, start_s: float = 0.0) -> dict:
+    """Return the benches' shift: follow at 1 mm over a 0.3 mm, 0.5 Hz sine sheet."""
+    return {'name': 'shift', 'duration_s': seconds, 'seed': 3, 'initial_gap_mm': 3.0,
+            'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
+            'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 0.5}]},
+            'timeline': [{'t_s': start_s, 'do': 'start_follow', 'target_gap_mm': 1.0}]}
+
+
 def _tool(args: list[str]) -> dict:
     """Run ``ladrc ARGS`` in its own process; wall time and its peak RSS."""
     import subprocess
@@ -104,11 +112,7 @@ def tools(hours: float, bag: str | None) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix='bag-scale-tools-'))
     seconds = hours * 3600
     if bag is None:
-        sc = scenario_from_dict({
-            'name': 'shift', 'duration_s': seconds, 'seed': 3, 'initial_gap_mm': 3.0,
-            'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
-            'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 0.5}]},
-            'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
+        sc = scenario_from_dict(shift_scenario(seconds))
         params = ControllerParams()
         t0 = time.perf_counter()
         result = run(sc, FollowController(params), record_internals=True)
@@ -153,11 +157,7 @@ def live(seconds: float) -> dict:
 
     tmp = Path(tempfile.mkdtemp(prefix='bag-scale-live-'))
     scenario = tmp / 'shift_live.yaml'
-    scenario.write_text(yaml.safe_dump({
-        'name': 'shift_live', 'duration_s': seconds, 'seed': 3, 'initial_gap_mm': 3.0,
-        'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
-        'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 0.5}]},
-        'timeline': [{'t_s': 0.5, 'do': 'start_follow', 'target_gap_mm': 1.0}]}))
+    scenario.write_text(yaml.safe_dump(shift_scenario(seconds, start_s=0.5)))
     bag = tmp / 'bag'
     up = Bringup(node_specs(str(scenario), None, str(bag)), isolated_env(), log_dir=tmp / 'logs')
     load = []

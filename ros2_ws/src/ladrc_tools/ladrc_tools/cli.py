@@ -286,10 +286,10 @@ def _run_replay(a: argparse.Namespace) -> int:
               f'{summary["internal_mismatch_fields"]}')
     line = {'mode': 'own', **summary}
     if out is not None:
-        tmp = out.with_name(f'.{out.name}.partial')
-        tmp.mkdir(parents=True, exist_ok=True)
-        (tmp / 'replay.json').write_text(json.dumps(strict_json(line), indent=1))
-        tmp.replace(out)
+        from .offline.outdir import building
+
+        with building(out) as tmp:
+            (tmp / 'replay.json').write_text(json.dumps(strict_json(line), indent=1))
         line['output'] = str(out)
     print(json.dumps(strict_json(line)))
     return 0 if ok else 1

@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
-import shutil
 from typing import Any
 
 from ladrc_follow.control.loop import AxisModel, LoopAnalysis, analyse_params
 from ladrc_follow.control.params import ControllerParams
 import numpy as np
 
+from .outdir import building
 from .report import strict_json
 
 
@@ -119,10 +118,7 @@ def write_analysis(params: ControllerParams, params_source: str, mode: str | Non
     fig['gate_reasons'] = reasons
     if out_dir.exists():
         raise FileExistsError(f'{out_dir} exists already: outputs are never overwritten')
-    tmp = out_dir.with_name(f'.{out_dir.name}.partial')
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        tmp.mkdir(parents=True)
+    with building(out_dir) as tmp:
         plot(an, tmp / 'bode.png', f'{mode}: PM {fig["phase_margin_deg"]}°, '
              f'GM {fig["gain_margin_db"]} dB, Ms {fig["ms_peak"]}')
         (tmp / 'analysis.md').write_text(markdown(fig, params_source, mode, axis),
@@ -130,8 +126,4 @@ def write_analysis(params: ControllerParams, params_source: str, mode: str | Non
         (tmp / 'analysis.json').write_text(json.dumps(strict_json(
             {'controller': mode, 'params': params_source, 'axis': vars(axis), **fig}),
             indent=1) + '\n', encoding='utf-8')
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir, fig

@@ -9,14 +9,13 @@ temporary name and renamed when complete.
 from __future__ import annotations
 
 import csv
-import os
 from pathlib import Path
-import shutil
 from typing import Callable, Iterable
 
 import numpy as np
 
 from ..bags.bag import BagError, open_bag
+from .outdir import building
 
 EXPORT_CHUNK = 8192
 """Messages formatted at a time."""
@@ -35,24 +34,15 @@ def export_csv(bag_path: str | Path, out_dir: str | Path | None = None,
     out = Path(out_dir) if out_dir else bag_path.with_name(bag_path.name + '_csv')
     if out.exists():
         raise BagError(f'{out} exists already: choose another output folder (-o)')
-    tmp = out.with_name(f'.{out.name}.partial')
-    with open_bag(bag_path) as bag:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        try:
-            names = []
-            for topic in sorted(bag.topics):
-                name = topic_filename(topic)
-                # one chunk of columns at a time: memory stays that of a chunk, at any length
-                # (a chunk's rows become Python strings: EXPORT_CHUNK keeps them few)
-                _write(tmp / name, bag.iter_columns(
-                    topic, progress=progress(topic) if progress else None,
-                    chunk=EXPORT_CHUNK))
-                names.append(name)
-            os.replace(tmp, out)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
+    with open_bag(bag_path) as bag, building(out) as tmp:
+        names = []
+        for topic in sorted(bag.topics):
+            name = topic_filename(topic)
+            # one chunk of columns at a time: memory stays that of a chunk, at any length
+            # (a chunk's rows become Python strings: EXPORT_CHUNK keeps them few)
+            _write(tmp / name, bag.iter_columns(
+                topic, progress=progress(topic) if progress else None, chunk=EXPORT_CHUNK))
+            names.append(name)
     return [out / n for n in names]
 
 

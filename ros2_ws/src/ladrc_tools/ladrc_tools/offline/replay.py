@@ -22,9 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 import math
-import os
 from pathlib import Path
-import shutil
 import time
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
@@ -41,6 +39,7 @@ import yaml
 
 from ..bags.bag import Bag, BagError, open_bag
 from .envelope import Envelope
+from .outdir import building
 
 __all__ = [
     'ReplayError', 'Recording', 'RecordedBatch', 'RecordedEvent', 'Replay', 'ReplayBatch',
@@ -951,20 +950,13 @@ def write_whatif(bag: Path, table: Mapping[str, Any], plot: Mapping[str, np.ndar
     out = Path(out_dir)
     if out.exists():
         raise ReplayError(f'{out} exists already: outputs are never overwritten')
-    tmp = out.with_name(f'.{out.name}.partial')
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        tmp.mkdir(parents=True)
+    with building(out) as tmp:
         _plot(plot, tmp / 'whatif.png')
         (tmp / 'whatif.md').write_text(_markdown(table, bag, params_source), encoding='utf-8')
         (tmp / 'whatif.json').write_text(json.dumps(strict_json(
             {'bag': str(bag), 'params_source': params_source, **table}), indent=1),
             encoding='utf-8')
         (tmp / 'params.yaml').write_text(dump_params(params), encoding='utf-8')
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 

@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
-import shutil
 import sys
 from typing import Any, Callable
 
@@ -22,6 +20,7 @@ import yaml
 
 from ..bags.bag import SEQ_FIELD, Bag, BagError, count_lost, open_bag, read_text_topic
 from .envelope import Envelope
+from .outdir import building
 from .quantiles import Quantiles
 
 STATE_NAMES = ['IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT']
@@ -382,19 +381,12 @@ def write_report(bag_path: str | Path, out_dir: str | Path | None = None,
         raise BagError(f'{out} exists already: choose another output folder (-o)')
     with open_bag(bag_path) as bag:
         report, series = analyse(bag, progress)
-    tmp = out.with_name(f'.{out.name}.partial')
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
+    with building(out) as tmp:
         pngs = _plots(series, report, tmp)
         report['plots'] = pngs
         (tmp / 'report.json').write_text(json.dumps(strict_json(report), indent=1) + '\n',
                                          encoding='utf-8')
         (tmp / 'report.md').write_text(_markdown(report, pngs), encoding='utf-8')
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 
