@@ -30,7 +30,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .ladrc import LADRC
+from .ladrc import LADRC, _constants
+from .ops import SCALAR
 from .params import ControllerParams
 from .pid import FollowPID
 
@@ -154,7 +155,8 @@ def controller_ss(params: ControllerParams, mode: str | None = None) -> StateSpa
     mode = mode or params.follow.controller
     h = params.h_s
     if mode == 'ladrc':
-        c = LADRC(params)
+        # the set was validated where it was loaded: build without checking it again
+        c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
         names = ['z1', 'z2'] + (['z3'] if c.order == 2 else []) + ['u', 'fused_gap_mm']
         p_ss = params.kalman.p0_mm2
         if c.kalman_enabled:  # the steady-state covariance: the gain the filter settles to
