@@ -10,8 +10,6 @@ from ladrc_sim.headless.batch import BatchUnsupported, check_batchable, run_batc
 from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict
 from ladrc_sim.models.axis import Axis
 from ladrc_sim.models.encoder import Encoder
-from ladrc_sim.models.sensor import Sensor
-from ladrc_sim.models.sheet import Sheet
 import numpy as np
 import pytest
 
@@ -20,15 +18,10 @@ H = 0.0005
 
 def _scalar_loop(sc, params):
     """Run the reference: the scalar models (Sheet, Sensor, Encoder, Axis), the scalar core."""
-    from ladrc_sim.headless.runner import schedule
+    from ladrc_sim.headless.runner import draw_world
 
     n = int(round(sc.duration_s / H))
-    rng = np.random.default_rng(sc.seed)
-    sheet = Sheet(sc.sheet, n, H, rng)
-    gain = schedule(n, H, 1.0, [(e.t_s, e.args['value'], e.args['ramp_s'])
-                                for e in sc.timeline if e.name == 'sensor_gain']
-                    ) * sheet.feedback_gain
-    sensor = Sensor(sc.sensor, n, H, rng, gain_schedule=gain)
+    sheet, sensor = draw_world(sc, n, H)  # the scalar runner's world
     encoder = Encoder(sc.encoder, n, H, ())
     target = check_batchable(sc)
     targets = np.full(n, target)

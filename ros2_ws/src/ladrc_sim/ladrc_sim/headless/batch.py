@@ -30,9 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..models.axis import H_S
-from ..models.sensor import Sensor
-from ..models.sheet import Sheet
-from .runner import schedule
+from .runner import draw_world
 from .scenario import Scenario, load_scenario
 
 
@@ -91,13 +89,7 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
     for e in sorted((e for e in sc.timeline if e.name == 'set_target'), key=lambda e: e.t_s):
         targets[min(n - 1, int(round(e.t_s / h_s))):] = e.args['target_gap_mm']
     targets_l = targets.tolist()
-    rng = np.random.default_rng(sc.seed)
-    # the runner's world, drawn in its order: sheet, sensor
-    sheet = Sheet(sc.sheet, n, h_s, rng)
-    gain = schedule(n, h_s, 1.0, [(e.t_s, e.args['value'], e.args['ramp_s'])
-                                  for e in sc.timeline if e.name == 'sensor_gain']
-                    ) * sheet.feedback_gain
-    sensor = Sensor(sc.sensor, n, h_s, rng, gain_schedule=gain)
+    sheet, sensor = draw_world(sc, n, h_s)  # the runner's world
     base = sheet.base_mm
     s_gain, s_noise, s_alpha = sensor._gain, sensor._noise, sensor._alpha
     s_q, s_rmax, s_rmin = sc.sensor.quant_mm, sc.sensor.range_max_mm, sc.sensor.range_min_mm

@@ -139,6 +139,20 @@ def _held(n: int, h_s: float, spans: list[tuple[float, float]]) -> list[bool]:
     return held.tolist()
 
 
+def draw_world(sc: Scenario, n: int, h_s: float) -> tuple[Sheet, Sensor]:
+    """Draw the scenario's sheet and sensor for ``n`` ticks from its seed.
+
+    One Generator, always drawn in the same order: sheet, sensor (determinism); the batch
+    loop (:mod:`.batch`) draws the same world.
+    """
+    rng = np.random.default_rng(sc.seed)
+    sheet = Sheet(sc.sheet, n, h_s, rng)
+    gain = schedule(n, h_s, 1.0, [(e.t_s, e.args['value'], e.args['ramp_s'])
+                                  for e in sc.timeline if e.name == 'sensor_gain']
+                    ) * sheet.feedback_gain
+    return sheet, Sensor(sc.sensor, n, h_s, rng, gain_schedule=gain)
+
+
 def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: bool = False,
         h_s: float = H_S, tol_mm: float = TOL_MM, hold_s: float = HOLD_S) -> RunResult:
     """Run ``controller`` through ``scenario`` (object, file path or shipped name)."""
@@ -148,16 +162,11 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
         raise ValueError(f'{type(controller).__name__} is not a controller: it needs '
                          'step(tick) -> float and command(name, **kwargs)')
     n = int(round(sc.duration_s / h_s))
-    rng = np.random.default_rng(sc.seed)
-    # one Generator, always drawn in the same order: sheet, sensor (determinism).
-    sheet = Sheet(sc.sheet, n, h_s, rng)
+    sheet, sensor = draw_world(sc, n, h_s)
     ev = sc.timeline
     cov = schedule(n, h_s, sc.initial_coverage,
                    [(e.t_s, e.args['value'], e.args['ramp_s']) for e in ev
                     if e.name == 'coverage'])
-    gain = schedule(n, h_s, 1.0, [(e.t_s, e.args['value'], e.args['ramp_s']) for e in ev
-                                  if e.name == 'sensor_gain']) * sheet.feedback_gain
-    sensor = Sensor(sc.sensor, n, h_s, rng, gain_schedule=gain)
     glitches = tuple(Glitch('jump', e.t_s, e.args['duration_s'], e.args['size_mm'])
                      for e in ev if e.name == 'encoder_jump')
     glitches += tuple(Glitch('stuck', e.t_s, e.args['duration_s']) for e in ev
