@@ -194,3 +194,33 @@ def test_stability_gate_rejects_with_the_numbers_and_the_cli_too(tmp_path, capsy
     assert line['gate_passed'] is False and line['phase_margin_deg'] == pytest.approx(19.9,
                                                                                       abs=0.1)
     assert 'stability gate' in (tmp_path / 'a' / 'analysis.md').read_text()
+
+
+def test_tune_on_a_tiny_grid_writes_a_set_that_loads_and_beats_the_worst(tmp_path, capsys):
+    """`ladrc tune` writes a set that loads and beats the worst grid point.
+
+    A gated-out point is reported with its reason and not run; the chosen set is a parameter
+    file the loaders accept, on the Pareto front, with a better score than the worst point.
+    """
+    import json
+
+    from ladrc_follow.control.params import load_params
+    from ladrc_tools.cli import main as ladrc
+
+    out = tmp_path / 'tune'
+    assert ladrc(['tune', '--w0', '40:120:3', '--kp', '5:60:2', '--scenarios', 'sine_5hz',
+                  '-o', str(out)]) == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    table = json.loads((out / 'tune.json').read_text())
+    rejected = [r for r in table['grid_points'] if r['rejected']]
+    assert rejected and all(r['kp'] == 60.0 and 'stability gate' in r['rejected']
+                            and r['error_rms_mm'] is None for r in rejected)
+    assert line['gated_in'] == 6 - len(rejected) >= 2 and line['front'] >= 1
+    tuned = load_params(out / 'tuned.yaml')  # gated again on loading: it passes
+    assert tuned.eso.w0_rad_s == line['chosen']['w0_rad_s']
+    assert line['chosen_score'] < line['worst_score']
+    assert sorted(p.name for p in out.iterdir()) == ['pareto.png', 'tune.json', 'tune.md',
+                                                     'tuned.yaml']
+    assert ladrc(['tune', '--w0', 'x', '-o', str(tmp_path / 'b')]) == 2
+    assert ladrc(['tune', '--scenarios', 'thin_sheet', '-o', str(tmp_path / 'c')]) == 2
+    assert 'thin-sheet plate' in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""``ladrc``: the user CLI (simulate, replay, report, export, suite, params, analyze).
+"""``ladrc``: the user CLI (simulate, replay, report, export, suite, params, analyze, tune).
 
 Every subcommand is one entry of :data:`COMMANDS` (name -> (help, add-arguments, run)); add a
 subcommand by adding an entry. Bad input (missing file, truncated/foreign bag, missing topic,
@@ -340,6 +340,53 @@ def _run_analyze(a: argparse.Namespace) -> int:
     return 0
 
 
+# ---- tune ---------------------------------------------------------------------------------
+def _add_tune(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--w0', default='30:150:5',
+                   help='observer bandwidths ω0 [rad/s]: a:b:n or a value [30:150:5]')
+    p.add_argument('--kp', default='4:24:5', help='law.kp [1/s]: a:b:n or a value [4:24:5]')
+    p.add_argument('--b0', default='1', help='eso.b0: a:b:n or a value [1]')
+    p.add_argument('--scenarios', default=None,
+                   help='comma-separated scenario names [every one the batch loop models]')
+    p.add_argument('--params', help='base parameter YAML (default: built-in defaults)')
+    p.add_argument('-o', '--output', default='tune', help='output folder [tune]')
+
+
+def _run_tune(a: argparse.Namespace) -> int:
+    from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
+    from ladrc_sim.headless.batch import BatchUnsupported, check_batchable
+    from ladrc_sim.headless.scenario import ScenarioError, load_scenario
+
+    from .offline.report import stderr_progress, strict_json
+    from .offline.tune import batchable_scenarios, parse_range, sweep, write_tune
+
+    out = Path(a.output)
+    if out.exists():
+        raise CliError(f'{out} exists already: outputs are never overwritten')
+    try:
+        w0s, kps, b0s = (parse_range(a.w0, 'w0'), parse_range(a.kp, 'kp'),
+                         parse_range(a.b0, 'b0'))
+        base = load_params(a.params) if a.params else ControllerParams()
+        names = a.scenarios.split(',') if a.scenarios else batchable_scenarios()
+        for name in names:
+            check_batchable(load_scenario(name))
+    except (ValueError, ParameterError, ScenarioError, BatchUnsupported) as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    cands = sweep(base, w0s, kps, b0s, names, stderr_progress('scenarios'))
+    try:
+        out, summary = write_tune(cands, names, out)
+    except ValueError as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    c = summary['chosen']
+    print(f'{summary["grid"]} grid points, {summary["gated_in"]} through the stability gate, '
+          f'{summary["front"]} on the Pareto front')
+    print(f'chosen: w0 {c["w0_rad_s"]:g} rad/s, kp {c["kp"]:g} 1/s, b0 {c["b0"]:g}: error RMS '
+          f'{c["error_rms_mm"]:.4g} mm, chatter {c["chatter_mm_s"]:.4g} mm/s')
+    print(f'written: {out}/tuned.yaml, tune.md, tune.json, pareto.png')
+    print(json.dumps(strict_json({'output': str(out), **summary})))
+    return 0
+
+
 # ---- params -------------------------------------------------------------------------------
 PARAMETERS_DOC_HEAD = """# Parameters
 
@@ -406,6 +453,9 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
     'analyze': ('the linear loop of a parameter set around the axis model: margins, Ms, '
                 'bandwidth, Bode plots (analysis.md, analysis.json, bode.png)',
                 _add_analyze, _run_analyze),
+    'tune': ('sweep a grid of LADRC sets (ω0, kp, b0) through the stability gate and the '
+             'batch closed loop; Pareto front; the chosen set as tuned.yaml',
+             _add_tune, _run_tune),
     'suite': ('run the scenario library for PID and LADRC variants; comparison table '
               "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
               _add_suite, _run_suite),
