@@ -208,8 +208,8 @@ def test_tune_on_a_tiny_grid_writes_a_set_that_loads_and_beats_the_worst(tmp_pat
     from ladrc_tools.cli import main as ladrc
 
     out = tmp_path / 'tune'
-    assert ladrc(['tune', '--w0', '40:120:3', '--kp', '5:60:2', '--scenarios', 'sine_5hz',
-                  '-o', str(out)]) == 0
+    assert ladrc(['tune', '--w0', '40:120:3', '--kp', '5:60:2', '--td-r', '100',
+                  '--scenarios', 'sine_5hz', '-o', str(out)]) == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     table = json.loads((out / 'tune.json').read_text())
     rejected = [r for r in table['grid_points'] if r['rejected']]

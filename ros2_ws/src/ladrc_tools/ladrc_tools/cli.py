@@ -346,6 +346,9 @@ def _add_tune(p: argparse.ArgumentParser) -> None:
                    help='observer bandwidths ω0 [rad/s]: a:b:n or a value [30:150:5]')
     p.add_argument('--kp', default='4:24:5', help='law.kp [1/s]: a:b:n or a value [4:24:5]')
     p.add_argument('--b0', default='1', help='eso.b0: a:b:n or a value [1]')
+    p.add_argument('--td-r', default=None,
+                   help='td_b.r_per_s, the reference TD speed [1/s]: a:b:n or a value '
+                        "[the base set's]")
     p.add_argument('--scenarios', default=None,
                    help='comma-separated scenario names [every one the batch loop models]')
     p.add_argument('--params', help='base parameter YAML (default: built-in defaults)')
@@ -366,13 +369,14 @@ def _run_tune(a: argparse.Namespace) -> int:
     try:
         w0s, kps, b0s = (parse_range(a.w0, 'w0'), parse_range(a.kp, 'kp'),
                          parse_range(a.b0, 'b0'))
+        td_rs = parse_range(a.td_r, 'td-r') if a.td_r else None
         base = load_params(a.params) if a.params else ControllerParams()
         names = a.scenarios.split(',') if a.scenarios else batchable_scenarios()
         for name in names:
             check_batchable(load_scenario(name))
     except (ValueError, ParameterError, ScenarioError, BatchUnsupported) as exc:
         raise CliError(' '.join(str(exc).split())) from None
-    cands = sweep(base, w0s, kps, b0s, names, stderr_progress('scenarios'))
+    cands = sweep(base, w0s, kps, b0s, names, stderr_progress('scenarios'), td_rs)
     try:
         out, summary = write_tune(cands, names, out)
     except ValueError as exc:
@@ -380,7 +384,8 @@ def _run_tune(a: argparse.Namespace) -> int:
     c = summary['chosen']
     print(f'{summary["grid"]} grid points, {summary["gated_in"]} through the stability gate, '
           f'{summary["front"]} on the Pareto front')
-    print(f'chosen: w0 {c["w0_rad_s"]:g} rad/s, kp {c["kp"]:g} 1/s, b0 {c["b0"]:g}: error RMS '
+    print(f'chosen: w0 {c["w0_rad_s"]:g} rad/s, kp {c["kp"]:g} 1/s, b0 {c["b0"]:g}, TD R '
+          f'{c["td_r_per_s"]:g} 1/s: error RMS '
           f'{c["error_rms_mm"]:.4g} mm, chatter {c["chatter_mm_s"]:.4g} mm/s')
     print(f'written: {out}/tuned.yaml, tune.md, tune.json, pareto.png')
     print(json.dumps(strict_json({'output': str(out), **summary})))

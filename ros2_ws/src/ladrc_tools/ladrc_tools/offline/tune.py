@@ -1,7 +1,8 @@
 """``ladrc tune``: a grid of LADRC sets, gated, swept in the batch closed loop, Pareto front.
 
-The grid spans the observer bandwidth ω0 (``eso.gains: bandwidth``), the gain ``law.kp`` and
-``eso.b0`` around a base set. Every grid set is validated and put through the stability gate
+The grid spans the observer bandwidth ω0 (``eso.gains: bandwidth``), the gain ``law.kp``,
+``eso.b0`` and the second TD's speed factor ``td_b.r_per_s`` around a base set. Every grid
+set is validated and put through the stability gate
 (:mod:`ladrc_follow.control.stability`); the sets that pass run together, as rows of one batch
 (:mod:`ladrc_sim.headless.batch`), through each chosen scenario. Two scores per set, averaged
 over the scenarios: the **error RMS** (true gap − target, from 0.2 s on: tracking and
@@ -43,6 +44,7 @@ class Candidate:
     w0_rad_s: float
     kp: float
     b0: float
+    td_r_per_s: float
     params: ControllerParams | None
     rejected: str = ''
     error_rms_mm: float = math.nan
@@ -90,14 +92,19 @@ def _chatter(u: np.ndarray, h_s: float) -> np.ndarray:
 
 def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
           b0s: Sequence[float], scenarios: Sequence[str],
-          progress: Callable[[int, int], None] | None = None) -> list[Candidate]:
-    """Build, gate and run the grid; mark the Pareto front."""
+          progress: Callable[[int, int], None] | None = None,
+          td_rs: Sequence[float] | None = None) -> list[Candidate]:
+    """Build, gate and run the grid; mark the Pareto front.
+
+    ``td_rs``: speed factors R of the second TD (``td_b.r_per_s``; default: the base's).
+    """
     cands = []
-    for w0, kp, b0 in itertools.product(w0s, kps, b0s):
-        c = Candidate(w0, kp, b0, None)
+    for w0, kp, b0, r in itertools.product(w0s, kps, b0s, td_rs or [base.td_b.r_per_s]):
+        c = Candidate(w0, kp, b0, r, None)
         try:
             p = replace(base, eso=replace(base.eso, gains='bandwidth', w0_rad_s=w0, b0=b0),
                         law=replace(base.law, gains='explicit', kp=kp),
+                        td_b=replace(base.td_b, r_per_s=r),
                         follow=replace(base.follow, controller='ladrc'))
             check(p)
             reasons = stability_reasons(p)
@@ -183,13 +190,15 @@ def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path
     if chosen is None:
         raise ValueError('no grid point passed the validation and the stability gate '
                          f'(first reason: {cands[0].rejected if cands else "empty grid"})')
-    rows = [{'w0_rad_s': c.w0_rad_s, 'kp': c.kp, 'b0': c.b0, 'rejected': c.rejected or None,
+    rows = [{'w0_rad_s': c.w0_rad_s, 'kp': c.kp, 'b0': c.b0, 'td_r_per_s': c.td_r_per_s,
+             'rejected': c.rejected or None,
              'error_rms_mm': c.error_rms_mm, 'chatter_mm_s': c.chatter_mm_s,
              'front': c.front} for c in cands]
     live = [c for c in cands if c.params is not None]
     summary = {'grid': len(cands), 'gated_in': len(live), 'front': sum(c.front for c in cands),
                'scenarios': list(scenarios),
                'chosen': {'w0_rad_s': chosen.w0_rad_s, 'kp': chosen.kp, 'b0': chosen.b0,
+                          'td_r_per_s': chosen.td_r_per_s,
                           'error_rms_mm': chosen.error_rms_mm,
                           'chatter_mm_s': chosen.chatter_mm_s},
                'worst_error_rms_mm': max(c.error_rms_mm for c in live),
@@ -199,13 +208,16 @@ def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path
              f'{len(cands)} grid points, {len(live)} pass the validation and the stability '
              f'gate, {summary["front"]} on the Pareto front; scores averaged over '
              f'{", ".join(scenarios)} (batch closed loop, rows start followed).', '',
-             f'Chosen: ω0 {chosen.w0_rad_s:g} rad/s, kp {chosen.kp:g} 1/s, b0 {chosen.b0:g}: '
+             f'Chosen: ω0 {chosen.w0_rad_s:g} rad/s, kp {chosen.kp:g} 1/s, b0 {chosen.b0:g}, '
+             f'TD R {chosen.td_r_per_s:g} 1/s: '
              f'error RMS {chosen.error_rms_mm:.4g} mm, chatter {chosen.chatter_mm_s:.4g} mm/s '
              '(`tuned.yaml`).', '',
-             '| ω0 [rad/s] | kp [1/s] | b0 | error RMS [mm] | chatter [mm/s] | front | gate |',
-             '| --- | --- | --- | --- | --- | --- | --- |']
+             '| ω0 [rad/s] | kp [1/s] | b0 | TD R [1/s] | error RMS [mm] | chatter [mm/s] '
+             '| front | gate |',
+             '| --- | --- | --- | --- | --- | --- | --- | --- |']
     for c in cands:
-        lines.append(f'| {c.w0_rad_s:g} | {c.kp:g} | {c.b0:g} | {c.error_rms_mm:.4g} | '
+        lines.append(f'| {c.w0_rad_s:g} | {c.kp:g} | {c.b0:g} | {c.td_r_per_s:g} | '
+                     f'{c.error_rms_mm:.4g} | '
                      f'{c.chatter_mm_s:.4g} | {"yes" if c.front else ""} | '
                      f'{c.rejected or "passes"} |')
     with building(out) as tmp:
