@@ -28,8 +28,7 @@ for pkg in ('ladrc_follow', 'ladrc_sim'):
 
 from ladrc_follow.control.ladrc import LADRC  # noqa: E402
 from ladrc_follow.control.params import ControllerParams, ESOParams, LawParams  # noqa: E402
-from ladrc_sim.headless.batch import BatchUnsupported, check_batchable, run_batch  # noqa: E402
-from ladrc_sim.headless.scenario import list_scenarios, load_scenario  # noqa: E402
+from ladrc_sim.headless.batch import batchable_scenarios, run_batch  # noqa: E402
 
 
 def parameter_sets(n: int, seed: int = 1) -> list[ControllerParams]:
@@ -50,13 +49,7 @@ def main() -> None:
     ap.add_argument('--sets', type=int, default=1000)
     a = ap.parse_args()
     sets = parameter_sets(a.sets)
-    names = []
-    for f in sorted(list_scenarios(), key=lambda q: q.stem):
-        try:
-            check_batchable(load_scenario(f.stem))
-            names.append(f.stem)
-        except BatchUnsupported:
-            continue  # the plate, the edges, the fault scenario (batch.py docstring)
+    names = batchable_scenarios()
     single = {}
     for n in (1, 100, 1000):
         res = run_batch('sine_5hz', LADRC.batch(sets[:n] if n <= len(sets)

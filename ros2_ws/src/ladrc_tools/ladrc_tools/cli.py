@@ -357,11 +357,11 @@ def _add_tune(p: argparse.ArgumentParser) -> None:
 
 def _run_tune(a: argparse.Namespace) -> int:
     from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
-    from ladrc_sim.headless.batch import BatchUnsupported, check_batchable
+    from ladrc_sim.headless.batch import BatchUnsupported, batchable_scenarios, check_batchable
     from ladrc_sim.headless.scenario import ScenarioError, load_scenario
 
     from .offline.report import stderr_progress, strict_json
-    from .offline.tune import batchable_scenarios, parse_range, sweep, write_tune
+    from .offline.tune import parse_range, sweep, write_tune
 
     out = Path(a.output)
     if out.exists():

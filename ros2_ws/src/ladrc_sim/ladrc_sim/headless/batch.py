@@ -31,7 +31,7 @@ import numpy as np
 
 from ..models.axis import H_S
 from .runner import draw_world
-from .scenario import Scenario, load_scenario
+from .scenario import Scenario, list_scenarios, load_scenario
 
 
 class BatchUnsupported(ValueError):
@@ -77,6 +77,18 @@ def check_batchable(sc: Scenario) -> float:
     if why:
         raise BatchUnsupported(f'scenario {sc.name}: not batchable ({"; ".join(why)})')
     return float(starts[0].args['target_gap_mm'])
+
+
+def batchable_scenarios() -> list[str]:
+    """Return the names of the library scenarios the batch loop models."""
+    out = []
+    for f in sorted(list_scenarios(), key=lambda q: q.stem):
+        try:
+            check_batchable(load_scenario(f.stem))
+            out.append(f.stem)
+        except BatchUnsupported:
+            continue  # the plate, the edges, the fault scenario (module docstring)
+    return out
 
 
 def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,

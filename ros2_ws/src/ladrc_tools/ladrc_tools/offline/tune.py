@@ -25,8 +25,7 @@ from typing import Any, Callable, Sequence
 from ladrc_follow.control.ladrc import LADRC
 from ladrc_follow.control.params import ControllerParams, ParameterError, check, dump_params
 from ladrc_follow.control.stability import stability_reasons
-from ladrc_sim.headless.batch import BatchUnsupported, check_batchable, run_batch
-from ladrc_sim.headless.scenario import list_scenarios, load_scenario
+from ladrc_sim.headless.batch import run_batch
 import numpy as np
 
 from .outdir import building
@@ -66,18 +65,6 @@ def parse_range(text: str, what: str) -> list[float]:
     except ValueError:
         pass
     raise ValueError(f'--{what} {text!r}: give a value or a:b:n (n values from a to b)')
-
-
-def batchable_scenarios() -> list[str]:
-    """Return the library scenarios the batch loop models."""
-    out = []
-    for f in sorted(list_scenarios(), key=lambda q: q.stem):
-        try:
-            check_batchable(load_scenario(f.stem))
-            out.append(f.stem)
-        except BatchUnsupported:
-            continue
-    return out
 
 
 def _chatter(u: np.ndarray, h_s: float) -> np.ndarray:
