@@ -58,7 +58,7 @@ def simulated(params: ControllerParams, mode: str, f: float) -> complex:
         'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.005, 'freq_hz': f,
                                 't_start_s': t_on}]},
         'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
-    res = run(sc, FollowController(params, mode=mode))
+    res = run(sc, FollowController(params, mode=mode, gate=False))
     n = int(round(periods / f / H))
     sl = slice(res.t_s.size - n, res.t_s.size)
     basis = np.exp(-2j * np.pi * f * (res.t_s[sl] - t_on))

@@ -3,10 +3,10 @@
     scripts/in-env python bench/sweep_speed.py [--sets 1000]
 
 The LADRC core on numpy rows (``LADRC.batch``) in the batch closed loop
-(``ladrc_sim.headless.batch.run_batch``): every library scenario the batch models (see its
-docstring; the thin sheet, the edges and the fault scenario are not), all ``--sets`` random
-parameter sets at once (observer bandwidth 30-150 rad/s, kp 3-30 1/s, b0 0.7-1.4). Also one
-scenario (``sine_5hz``) at N = 1, 100 and 1000 rows. Last line JSON: ``n_sets``,
+(``ladrc_sim.headless.batch.run_batch``): every library scenario the batch models (those that
+start followed; see its docstring: the approaches and the fault scenario are not), all
+``--sets`` random parameter sets at once (observer bandwidth 30-150 rad/s, kp 3-30 1/s, b0
+0.7-1.4). Also one scenario (``sine_5hz``) at N = 1, 100 and 1000 rows. Last line JSON: ``n_sets``,
 ``scenarios``, ``wall_s``, ``aggregate_realtime_x`` (simulated seconds of all rows per wall
 second; target >= 1500 on this 2-core class, wall <= 60 s), ``single_scenario``.
 """

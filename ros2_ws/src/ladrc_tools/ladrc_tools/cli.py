@@ -385,8 +385,8 @@ def _run_tune(a: argparse.Namespace) -> int:
     print(f'{summary["grid"]} grid points, {summary["gated_in"]} through the stability gate, '
           f'{summary["front"]} on the Pareto front')
     print(f'chosen: w0 {c["w0_rad_s"]:g} rad/s, kp {c["kp"]:g} 1/s, b0 {c["b0"]:g}, TD R '
-          f'{c["td_r_per_s"]:g} 1/s: error RMS '
-          f'{c["error_rms_mm"]:.4g} mm, chatter {c["chatter_mm_s"]:.4g} mm/s')
+          f'{c["td_r_per_s"]:g} 1/s: '
+          + ', '.join(f'{k} {c[k]:.4g}' for k in summary['objectives']))
     print(f'written: {out}/tuned.yaml, tune.md, tune.json, pareto.png')
     print(json.dumps(strict_json({'output': str(out), **summary})))
     return 0

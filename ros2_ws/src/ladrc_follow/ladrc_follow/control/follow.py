@@ -40,7 +40,7 @@ from .edge import EDGE, FALLING, UNVERIFIED, VERIFY, EdgeGuard
 from .follow_params import FollowParams
 from .interp import Interpolator, InterpParams
 from .ladrc import LADRC
-from .params import ControllerParams, check
+from .params import ControllerParams, check, check_gate
 from .pid import FollowPID
 
 __all__ = [
@@ -138,13 +138,15 @@ class _Build(NamedTuple):
 
 
 def _build(params: ControllerParams | None, follow: FollowParams | None,
-           mode: str | None = None) -> _Build:
+           mode: str | None = None, gate: bool = True) -> _Build:
     params = params if params is not None else ControllerParams()
     if follow is not None:
         params = replace(params, follow=follow)
     if mode is not None:
         params = replace(params, follow=replace(params.follow, controller=mode))
     check(params)  # the whole set (ParameterError is a ValueError)
+    if gate:
+        check_gate(params)  # its loops against the configured axis (stability.*)
     fp = params.follow
     ladrc = LADRC(params)
     return _Build(params, fp, ladrc, FollowPID(params.pid, params.h_s),
@@ -159,14 +161,20 @@ class FollowController:
     replay that re-issues the same commands before the same ticks reproduces the commands
     bit for bit. ``follow`` overrides ``params.follow``; ``mode`` ('ladrc' | 'pid') overrides
     ``follow.controller`` (also for later :meth:`set_params`).
+
+    Every set, at construction and in :meth:`set_params`, passes the stability gate
+    (``stability.*``, :mod:`.stability`) unless ``stability.gate`` is off in it, or ``gate``
+    is False: replay and the suite's study variants reproduce sets as they were, gate or not.
     """
 
     def __init__(self, params: ControllerParams | None = None,
-                 follow: FollowParams | None = None, *, mode: str | None = None) -> None:
+                 follow: FollowParams | None = None, *, mode: str | None = None,
+                 gate: bool = True) -> None:
         self._pending: list[tuple[str, dict]] = []
         self._pending_build: _Build | None = None
         self._mode = mode  # 'ladrc' | 'pid' overrides follow.controller (CLI --controller)
-        self._install(_build(params, follow, mode))
+        self._gate = gate
+        self._install(_build(params, follow, mode, gate))
         self._state = _IDLE
         self._tick = -1
         self._u = 0.0            # last applied command (mm/s)
@@ -263,7 +271,7 @@ class FollowController:
         Raises ValueError (``ParameterError``) naming every problem if the set is invalid;
         the running set is then unchanged.
         """
-        self._pending_build = _build(params, follow, self._mode)
+        self._pending_build = _build(params, follow, self._mode, self._gate)
 
     def _swap_params(self) -> None:
         b, self._pending_build = self._pending_build, None

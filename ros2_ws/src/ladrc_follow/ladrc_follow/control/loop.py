@@ -30,6 +30,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .eso import eso1_euler_step, eso1_zoh_step, eso2_euler_step, eso2_zoh_step
 from .ladrc import LADRC, _constants
 from .ops import SCALAR
 from .params import ControllerParams
@@ -69,6 +70,12 @@ class StateSpace:
         if self.delay_ticks:
             out[:, :, 0] *= z[:, None] ** (-self.delay_ticks)
         return out
+
+    def inputs(self, keep: Sequence[int]) -> StateSpace:
+        """Return the system seen from the inputs ``keep`` only (states they miss pruned)."""
+        a, b, c, d = _prune(self.a, self.b[:, list(keep)], self.c, self.d[:, list(keep)])
+        return StateSpace(a, b, c, d, self.h_s,
+                          self.delay_ticks if 0 in keep else 0)
 
     def with_delay_states(self) -> StateSpace:
         """Return the same system with the dead time as a delay line of states."""
@@ -147,13 +154,16 @@ def _prune(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray
 
 
 def controller_ss(params: ControllerParams, mode: str | None = None) -> StateSpace:
-    """Linearize the controller's feedback path (gap reading, encoder) -> command.
+    """Linearize the controller: inputs (gap reading, encoder, target) -> command.
 
     ``mode`` 'ladrc' (default: ``follow.controller``) or 'pid' (feed-forward on, as once
-    followed; suppression off: its deadband has no small-signal gain).
+    followed; suppression off: its deadband has no small-signal gain). The target enters
+    through the compound TD (LADRC) or the reference filter (PID), whose states are part of
+    the model; they do not take part in the feedback loop.
     """
     mode = mode or params.follow.controller
     h = params.h_s
+    n_td = 5  # the compound TD's state (a1, a2, b1, b2, v_prev), ladrc.py ``_track``
     if mode == 'ladrc':
         # the set was validated where it was loaded: build without checking it again
         c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
@@ -168,26 +178,27 @@ def controller_ss(params: ControllerParams, mode: str | None = None) -> StateSpa
                 p_ss = p_new
 
         def get() -> np.ndarray:
-            return np.array([float(getattr(c, k)) for k in names] + [c._enc_prev or 0.0])
+            return np.array([float(getattr(c, k)) for k in names] + [c._enc_prev or 0.0]
+                            + [float(v) for v in c._td])
 
         def put(x: np.ndarray) -> None:
             for k, v in zip(names, x, strict=False):
                 setattr(c, k, float(v))
-            c._enc_prev = float(x[-1])
+            c._enc_prev = float(x[len(names)])
             c.kalman_p = p_ss
-            c._td = (0.0, 0.0, 0.0, 0.0, 0.0)
+            c._td = tuple(float(v) for v in x[len(names) + 1:len(names) + 1 + n_td])
 
         def step(w: np.ndarray) -> float:
-            return c.step(float(w[0]), float(w[1]), 0.0)
+            return c.step(float(w[0]), float(w[1]), float(w[2]))
 
-        a, b, cc, d = _linearize(get, put, step, 2, names.index('u'))
+        a, b, cc, d = _linearize(get, put, step, 3, names.index('u'))
     elif mode == 'pid':
         pid = FollowPID(params.pid, h)
         pid.reset(0.0, 0.0, 0.0, 0.0)
         pid.enable_feed_forward(True)
         pid._ff_count = 10**9
         names = ['_gap_prev', '_surface_prev', 'gap_rate_mm_s', 'surface_rate_mm_s',
-                 'i_term', 'u']
+                 'i_term', 'u', '_target_prev', 'ref_rate_mm_s']
 
         def get() -> np.ndarray:
             return np.array([float(getattr(pid, k)) for k in names])
@@ -195,13 +206,11 @@ def controller_ss(params: ControllerParams, mode: str | None = None) -> StateSpa
         def put(x: np.ndarray) -> None:
             for k, v in zip(names, x, strict=True):
                 setattr(pid, k, float(v))
-            pid._target_prev = 0.0
-            pid.ref_rate_mm_s = 0.0
 
         def step(w: np.ndarray) -> float:
-            return pid.step(float(w[0]), float(w[1]), 0.0)
+            return pid.step(float(w[0]), float(w[1]), float(w[2]))
 
-        a, b, cc, d = _linearize(get, put, step, 2, names.index('u'))
+        a, b, cc, d = _linearize(get, put, step, 3, names.index('u'))
     else:
         raise ValueError(f'unknown controller mode {mode!r}: ladrc or pid')
     return StateSpace(a, b, cc, d, h)
@@ -258,6 +267,8 @@ class LoopAnalysis:
     complementary: np.ndarray  # T = L/(1 + L)
     sheet_to_nozzle: np.ndarray
     sheet_to_gap: np.ndarray
+    reference_to_gap: np.ndarray  # target -> gap through the TD (or the PID's filter)
+    reference_bandwidth_hz: float
     stable: bool
     spectral_radius: float
     gain_margin_db: float
@@ -274,13 +285,19 @@ class LoopAnalysis:
         """Return the scalar figures (JSON-friendly)."""
         keys = ('stable', 'spectral_radius', 'gain_margin_db', 'gain_margin_hz',
                 'lower_gain_margin_db', 'phase_margin_deg', 'crossover_hz', 'delay_margin_ms',
-                'ms_peak', 'ms_hz', 'bandwidth_hz')
+                'ms_peak', 'ms_hz', 'bandwidth_hz', 'reference_bandwidth_hz')
         return {k: getattr(self, k) for k in keys}
 
 
 def frequency_grid(h_s: float, n: int = 4000, f_min_hz: float = 0.01) -> np.ndarray:
     """Log-spaced frequencies from ``f_min_hz`` to just below Nyquist."""
     return np.geomspace(f_min_hz, 0.4999 / h_s, n)
+
+
+def _bandwidth(f: np.ndarray, resp: np.ndarray) -> float:
+    """Return the first frequency where ``|resp|`` falls below −3 dB (NaN if never)."""
+    below = np.flatnonzero(np.abs(resp) < 1 / math.sqrt(2))
+    return float(f[below[0]]) if below.size else math.nan
 
 
 def _crossings(x: np.ndarray) -> np.ndarray:
@@ -308,22 +325,27 @@ def analyse(ctrl: StateSpace, plant: StateSpace, f_hz: Sequence[float] | None = 
     """
     h = ctrl.h_s
     f = frequency_grid(h) if f_hz is None else np.asarray(f_hz, dtype=float)
+    fb = ctrl.inputs((0, 1))  # the feedback part: reading, encoder (the TD is outside it)
     # closed-loop poles: u = Cc xc + Dc Cp xp (reading, encoder), the dead time as states
     full = plant.with_delay_states()
     ap, bp, cp = full.a, full.b, full.c
-    ac, bc, cc, dc = ctrl.a, ctrl.b, ctrl.c, ctrl.d
+    ac, bc, cc, dc = fb.a, fb.b, fb.c, fb.d
     cpy, bpu = cp[:2], bp[:, 0:1]
     a_cl = np.block([[ap + bpu @ dc @ cpy, bpu @ cc], [bc @ cpy, ac]])
     rho = float(np.max(np.abs(np.linalg.eigvals(a_cl)))) if a_cl.size else 0.0
     # loop gain at the axis input: L = −K·G; the sheet reaches the loop through the reading
     pr = plant.response(f)                                                  # (n_f, 3, 2)
     g, g_sheet, g_noz = pr[:, :2, 0], pr[:, :2, 1], pr[:, 2, 0]
-    k = ctrl.response(f)[:, 0, :]                                           # (n_f, 2)
+    kall = ctrl.response(f)[:, 0, :]                          # (n_f, 3): reading, enc, target
+    k = kall[:, :2]
+    k_ref = kall[:, 2] if kall.shape[1] > 2 else np.full(f.size, np.nan)  # no target input
     loop = -np.sum(k * g, axis=1)
     sens = 1.0 / (1.0 + loop)
     comp = loop / (1.0 + loop)
     # u = K (G u + G_s s)  =>  u = K G_s s / (1 + L);  nozzle = G_x u
     noz = g_noz * np.sum(k * g_sheet, axis=1) * sens
+    # the reference path, TD included: u = K_r r / (1 + L); the gap = nozzle (sheet still)
+    ref = g_noz * k_ref * sens
     mag = np.abs(loop)
     # gain crossovers: |L| = 1
     pm, wc, dm = math.inf, math.nan, math.inf
@@ -348,11 +370,11 @@ def analyse(ctrl: StateSpace, plant: StateSpace, f_hz: Sequence[float] | None = 
         elif -re >= 1.0:
             gm_low = gm if math.isnan(gm_low) else max(gm_low, gm)
     i_ms = int(np.argmax(np.abs(sens)))
-    below = np.flatnonzero(np.abs(comp) < 1 / math.sqrt(2))
-    bw = float(f[below[0]]) if below.size else math.nan
+    bw = _bandwidth(f, comp)
     return LoopAnalysis(
         f_hz=f, loop=loop, sensitivity=sens, complementary=comp, sheet_to_nozzle=noz,
-        sheet_to_gap=noz - 1.0, stable=rho < 1.0, spectral_radius=rho,
+        sheet_to_gap=noz - 1.0, reference_to_gap=ref,
+        reference_bandwidth_hz=_bandwidth(f, ref), stable=rho < 1.0, spectral_radius=rho,
         gain_margin_db=gm_up, gain_margin_hz=f_gm, lower_gain_margin_db=gm_low,
         phase_margin_deg=pm if math.isfinite(pm) else math.nan, crossover_hz=wc,
         delay_margin_ms=dm * 1e3 if math.isfinite(dm) else math.nan,
@@ -364,3 +386,83 @@ def analyse_params(params: ControllerParams, axis: AxisModel | None = None,
                    ) -> LoopAnalysis:
     """:func:`analyse` of a parameter set against ``axis`` (default: the simulator's)."""
     return analyse(controller_ss(params, mode), axis_ss(axis or AxisModel(), params.h_s), f_hz)
+
+
+@dataclass
+class ObserverAnalysis:
+    """The ESO alone estimating the total disturbance f of its own model (paper §4).
+
+    ``disturbance_estimate``: ẑ_ext / f on ``f_hz`` (order 1: y' = f + b0·u, f in mm/s;
+    order 2: y'' = f + b0·u, f in mm/s²); ``error_poles_hz``: the natural frequencies
+    |ln λ|/(2π h) of the error dynamics' eigenvalues λ; ``bandwidth_hz``: where |ẑ/f| falls
+    to −3 dB.
+    """
+
+    f_hz: np.ndarray
+    disturbance_estimate: np.ndarray
+    error_poles_hz: list[float]
+    error_spectral_radius: float
+    bandwidth_hz: float
+
+    def figures(self) -> dict[str, Any]:
+        """Return the scalar figures (JSON-friendly)."""
+        return {'eso_bandwidth_hz': self.bandwidth_hz,
+                'eso_error_poles_hz': self.error_poles_hz,
+                'eso_error_spectral_radius': self.error_spectral_radius}
+
+
+def observer_ss(params: ControllerParams) -> StateSpace:
+    """Linearize the ESO's tick (as the LADRC runs it) on its own model: f -> ẑ_ext.
+
+    The plant is the ESO's model with u = 0, exact under a hold: y' = f (order 1) or
+    y'' = f (order 2); the observer is the LADRC's step function with its gains.
+    """
+    c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+    n, h = c.order, params.h_s
+    if n == 1:
+        eso = eso1_euler_step if c._euler else eso1_zoh_step
+    else:
+        eso = eso2_euler_step if c._euler else eso2_zoh_step
+    gains = c._gains[:n + 1]
+    state = np.zeros(n + 1 + n)  # z1..z_{n+1}, then y (and y' for order 2)
+
+    def get() -> np.ndarray:
+        return state.copy()
+
+    def put(x: np.ndarray) -> None:
+        state[:] = x
+
+    def step(w: np.ndarray) -> float:
+        z, y = state[:n + 1], state[n + 1:]
+        state[:n + 1] = eso(SCALAR, *z.tolist(), float(y[0]), 0.0, *gains, c._b0, h, *c._ext)
+        f = float(w[0])
+        if n == 1:
+            state[n + 1] = y[0] + h * f
+        else:
+            state[n + 1:] = (y[0] + h * y[1] + 0.5 * h * h * f, y[1] + h * f)
+        return float(state[n])
+
+    a, b, cc, d = _linearize(get, put, step, 1, n)
+    return StateSpace(a, b, cc, d, h)
+
+
+def analyse_observer(params: ControllerParams, f_hz: Sequence[float] | None = None
+                     ) -> ObserverAnalysis:
+    """Disturbance-estimation response and error dynamics of the set's ESO."""
+    from .eso import LinearESO
+
+    h = params.h_s
+    f = frequency_grid(h) if f_hz is None else np.asarray(f_hz, dtype=float)
+    resp = observer_ss(params).response(f)[:, 0, 0]
+    e = params.eso
+    c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+    gains = c._gains[:e.order + 1]
+    if e.discretization == 'euler':
+        err = LinearESO(e.order, e.b0, h, betas=gains).discrete_error_matrix()
+    else:  # the ZOH current estimator's error matrix (I − L C) Φ with the tick's gains
+        m = LinearESO(e.order, e.b0, h, w0_rad_s=1.0, discretization='zoh')
+        err = (np.eye(e.order + 1) - np.outer(np.asarray(gains), m.C)) @ m.phi
+    lam = np.linalg.eigvals(err)
+    poles = sorted(float(abs(np.log(v)) / (2 * math.pi * h)) if v != 0 else math.inf
+                   for v in lam)
+    return ObserverAnalysis(f, resp, poles, float(np.max(np.abs(lam))), _bandwidth(f, resp))

@@ -31,6 +31,7 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from .cap_table import CapTableParams
 from .edge import EdgeParams
 from .eso import bandwidth_gains, euler_is_stable, zoh_gains
 from .follow_params import FollowParams
@@ -155,6 +156,7 @@ class ControllerParams:
     follow: FollowParams = field(default_factory=FollowParams)
     edge: EdgeParams = field(default_factory=EdgeParams)
     stability: StabilityParams = field(default_factory=StabilityParams)
+    sensor: CapTableParams = field(default_factory=CapTableParams)
 
     def replace(self, **changes: Any) -> ControllerParams:
         """Return a copy with sections or values replaced (dataclasses.replace)."""
@@ -324,14 +326,22 @@ def params_from_dict(d: dict | None, node_name: str | None = None,
     if validate_set:
         check(p)
         if gate:
-            try:
-                reasons = stability_reasons(p)
-            except Exception as exc:  # noqa: BLE001 - a set the analysis cannot take
-                reasons = [f'stability gate: the loop could not be analysed: '
-                           f'{type(exc).__name__}: {exc}']
-            if reasons:
-                raise ParameterError(reasons)
+            check_gate(p)
     return p
+
+
+def check_gate(p: ControllerParams) -> None:
+    """Raise :class:`ParameterError` with the numbers if ``p`` fails the stability gate.
+
+    No-op when ``stability.gate`` is off. A set the analysis cannot take fails too.
+    """
+    try:
+        reasons = stability_reasons(p)
+    except Exception as exc:  # noqa: BLE001 - a set the analysis cannot take
+        reasons = [f'stability gate: the loop could not be analysed: '
+                   f'{type(exc).__name__}: {exc}']
+    if reasons:
+        raise ParameterError(reasons)
 
 
 def params_to_dict(p: ControllerParams) -> dict:
@@ -371,7 +381,7 @@ def _yaml_value(value: Any) -> str:
     if isinstance(value, tuple):
         return '[' + ', '.join(_yaml_value(float(v)) for v in value) + ']'
     if isinstance(value, str):
-        return value
+        return value or "''"  # an empty string, not YAML's null
     text = repr(value)
     if isinstance(value, float) and 'e' in text and '.' not in text:
         text = text.replace('e', '.0e')  # YAML 1.1 (PyYAML) reads 1e-06 as a string

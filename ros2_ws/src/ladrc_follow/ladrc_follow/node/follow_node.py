@@ -60,7 +60,8 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 import yaml
 
-from ..control.follow import FollowController, TickInput
+from ..control.cap_table import RawToGap, TableError, TableLimits, load_table
+from ..control.follow import FollowController, FollowState, TickInput
 from ..control.params import (
     DEFAULT_NODE_NAME,
     ControllerParams,
@@ -162,15 +163,21 @@ class FollowNode(Node):
                                          for e in node_entries})
         reasons = field_problems(self.node_params)
         # The whole set, as loaded from the parameter file, must be valid to start.
+        # sensor.table_file: the raw -> gap table (docs/calibration.md), None = gap_mm as sent
+        self.cap_table: RawToGap | None = None
+        self._pending_table: tuple[RawToGap | None] | None = None
         try:
             self.params = self._params_from_ros({})
+            self.cap_table = self._load_table(self.params)
         except ParameterError as exc:
             reasons += exc.reasons
         if reasons:
             raise ParameterError(reasons)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        self.controller = FollowController(self.params)
+        # every set reaching the controller passed the stability gate in params_from_dict (start
+        # up and the parameter callback); gate=False keeps the analysis off the tick path
+        self.controller = FollowController(self.params, gate=False)
         self._pending_params: ControllerParams | None = None
         self.h_s = self.params.h_s
         self.period_ns = int(round(self.h_s * 1e9))
@@ -289,8 +296,36 @@ class FollowNode(Node):
         except Exception as exc:  # noqa: BLE001 - never let a parameter crash the node
             return SetParametersResult(successful=False,
                                        reason=f'rejected: {type(exc).__name__}: {exc}')
+        table_changed = 'sensor.table_file' in changes or (
+            candidate.sensor.table_file
+            and candidate.follow.collision_gap_mm != self.params.follow.collision_gap_mm)
+        if table_changed:
+            state = self.controller.state
+            if state not in (FollowState.IDLE, FollowState.FAULT):
+                return SetParametersResult(successful=False, reason=(
+                    'sensor.table_file: a table changes only while not following (state '
+                    f'{state.name}): stop follow first'))
+            try:
+                table = self._load_table(candidate)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
         self._pending_params = candidate  # applied at the next tick boundary
+        self._pending_table = (table,) if table_changed else None
         return SetParametersResult(successful=True)
+
+    def _load_table(self, params: ControllerParams) -> RawToGap | None:
+        """Return the checked table of ``sensor.table_file`` (None when empty).
+
+        It must reach down to ``follow.collision_gap_mm``: a raw value closer than the table
+        then reads as a collision (``cap_table`` module docstring). Raises ParameterError.
+        """
+        path = params.sensor.table_file
+        if not path:
+            return None
+        try:
+            return load_table(path, TableLimits(max_first_gap_mm=params.follow.collision_gap_mm))
+        except TableError as exc:
+            raise ParameterError([f'sensor.table_file: {r}' for r in exc.reasons]) from None
 
     # ---- inputs -----------------------------------------------------------------------
     def _receive(self, stamp) -> tuple[float, bool]:
@@ -313,9 +348,18 @@ class FollowNode(Node):
         self._gap_last_seq = seq
         self.gap_seq = seq
         self.gap_stamp_s, stamp_ok = self._receive(msg.header.stamp)
-        self.gap_mm = msg.gap_mm
-        self.gap_valid = msg.valid and stamp_ok
-        self.gap_status = msg.status if stamp_ok else CapacitiveHeight.STATUS_FAULT
+        table = self.cap_table
+        if table is None:
+            self.gap_mm = msg.gap_mm
+            self.gap_valid = msg.valid and stamp_ok
+            self.gap_status = msg.status if stamp_ok else CapacitiveHeight.STATUS_FAULT
+        else:
+            # the controller converts raw -> gap (docs/calibration.md); outside the table:
+            # invalid, never extrapolated
+            gap, valid, status = table.convert(msg.raw_hz, msg.valid, msg.status)
+            self.gap_mm = gap
+            self.gap_valid = valid and stamp_ok
+            self.gap_status = status if stamp_ok else CapacitiveHeight.STATUS_FAULT
 
     def _on_feedback(self, msg: AxisFeedback) -> None:
         seq = msg.seq
@@ -336,6 +380,8 @@ class FollowNode(Node):
         if self._pending_params is not None:
             self.params, self._pending_params = self._pending_params, None
             self.controller.set_params(self.params)
+            if self._pending_table is not None:
+                self.cap_table, self._pending_table = self._pending_table[0], None
             self._publish_parameters()
         t_s = (start_mono - self._t0_ns) * 1e-9
         gap_stamp_s, enc_stamp_s = self.gap_stamp_s, self.enc_stamp_s
@@ -501,7 +547,11 @@ class FollowNode(Node):
         values = {k: f'{v:.6g}' for k, v in stats.items()}
         values.update({'state': state, 'fault_reason': ctl.fault_reason or '',
                        'ticks': str(self.tick_index), 'loop': self.loop_mode,
-                       'realtime': self.realtime})
+                       'realtime': self.realtime,
+                       'cap_table': (self.cap_table.describe() if self.cap_table is not None
+                                     else 'none (gap_mm as published)'),
+                       'cap_table_out_of_range': str(self.cap_table.out_of_range
+                                                     if self.cap_table is not None else 0)})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()

@@ -1,22 +1,25 @@
 """The closed loop of N controllers at once: one scenario, one axis per parameter set (numpy).
 
 For sweeps over parameter sets (issue 14): the state machine is not needed inside a sweep, so
-each row starts followed (the nozzle at the target gap, the controller reset there) and holds
-the scenario's first target. The world is the headless runner's (:mod:`.runner`), drawn
-from the same seed in the same order, so one row sees what a scalar run sees: the sheet's
-profiles, the sensor's gain schedule, noise, lag, quantization and range, the encoder's
-resolution, the first-order axis with its limits and dead time. The axis, sensor and encoder
-arithmetic is that of the models' scalar code written on arrays, operation for operation, so
-a row equals the scalar models bit for bit (``tests/sim/test_batch.py``).
+each row starts followed (the nozzle at the gap that reads the target, the controller reset
+there) and holds the scenario's first target. The world is the headless runner's
+(:mod:`.runner`), drawn from the same seed in the same order, so one row sees what a scalar
+run sees: the sheet's profiles, the thin-sheet plate (one plate per row: the gas push couples
+it to that row's nozzle), the edge (coverage schedule, fringe model and ripple), the sensor's
+gain schedule, noise, lag, quantization and range, the encoder's resolution, the first-order
+axis with its limits and dead time. The axis, plate, sensor and encoder arithmetic is that of
+the models' scalar code written on arrays, operation for operation, so a row equals the scalar
+models bit for bit (``tests/sim/test_batch.py``).
 
 The controller is any object with ``reset(gap_mm, u_prev_mm_s, target_mm, encoder_mm)`` and
 ``step(gap_mm, encoder_mm, target_mm) -> u`` on arrays of N rows (``LADRC.batch``); the
 simulator does not import the controller package.
 
-Not in a batch (:class:`BatchUnsupported` says which): the thin-sheet plate (it couples to the
-nozzle), coverage below 1 (the edge model), dropouts, freezes, encoder glitches, the
-identified plant, and timeline commands other than ``set_target`` (which takes effect at its
-tick in every row).
+Not in a batch (:class:`BatchUnsupported` says which), because each is the follow state
+machine's business, not the law's: a start away from the sheet (approach), coverage below the
+sensor's ``min_coverage`` (miss-panel), dropouts, freezes, encoder glitches, drive events, the
+machining flag (it hands the axis to the PID), the identified plant, and commands other than
+``start_follow`` / ``set_target`` (which takes effect at its tick in every row).
 """
 
 from __future__ import annotations
@@ -28,9 +31,12 @@ import time
 from typing import Any
 
 import numpy as np
+from scipy.optimize import brentq
 
 from ..models.axis import H_S
-from .runner import draw_world
+from ..models.sensor import Sensor
+from ..models.sheet import _first_tick
+from .runner import draw_world, schedule
 from .scenario import Scenario, list_scenarios, load_scenario
 
 
@@ -46,6 +52,7 @@ class BatchResult:
     true_gap_mm: np.ndarray      # (n, N)
     command_mm_s: np.ndarray     # (n, N)
     target_gap_mm: np.ndarray    # (n,) the target of each tick
+    coverage: np.ndarray         # (n,) the edge coverage of each tick
     wall_s: float
 
     @property
@@ -55,7 +62,8 @@ class BatchResult:
         return self.t_s.size * H_S * n_rows / self.wall_s if self.wall_s > 0 else math.inf
 
 
-_WORLD_EVENTS = ('sensor_gain', 'set_target')  # laid out as per-tick arrays
+# laid out as per-tick arrays before the loop
+_WORLD_EVENTS = ('sensor_gain', 'set_target', 'coverage', 'gas', 'plate_kick')
 
 
 def check_batchable(sc: Scenario) -> float:
@@ -63,10 +71,11 @@ def check_batchable(sc: Scenario) -> float:
     why = []
     if sc.axis.model != 'first_order':
         why.append(f'axis model {sc.axis.model}')
-    if any(type(p).__name__ == 'PlateParams' for p in sc.sheet.profiles):
-        why.append('the thin-sheet plate')
-    if sc.initial_coverage < 1.0:
-        why.append('coverage below 1')
+    covs = [sc.initial_coverage] + [e.args['value'] for e in sc.timeline
+                                    if e.name == 'coverage']
+    if min(covs) < sc.sensor.min_coverage:
+        why.append(f'coverage {min(covs):g} below min_coverage {sc.sensor.min_coverage:g} '
+                   '(miss-panel)')
     starts = [e for e in sc.timeline if e.name == 'start_follow']
     others = sorted({e.name for e in sc.timeline
                      if e.name not in _WORLD_EVENTS + ('start_follow',)})
@@ -74,6 +83,9 @@ def check_batchable(sc: Scenario) -> float:
         why.append('timeline events ' + ', '.join(others))
     if len(starts) != 1:
         why.append(f'{len(starts)} start_follow events (one is needed)')
+    elif starts[0].t_s > 0.0 or abs(sc.initial_gap_mm - starts[0].args['target_gap_mm']) > 1.0:
+        why.append(f'an approach from {sc.initial_gap_mm:g} mm (follow starts at '
+                   f'{starts[0].t_s:g} s to {starts[0].args["target_gap_mm"]:g} mm)')
     if why:
         raise BatchUnsupported(f'scenario {sc.name}: not batchable ({"; ".join(why)})')
     return float(starts[0].args['target_gap_mm'])
@@ -87,8 +99,52 @@ def batchable_scenarios() -> list[str]:
             check_batchable(load_scenario(f.stem))
             out.append(f.stem)
         except BatchUnsupported:
-            continue  # the plate, the edges, the fault scenario (module docstring)
+            continue  # an approach, a miss-panel, the fault scenario (module docstring)
     return out
+
+
+def followed_gap_mm(sensor: Sensor, target_mm: float, coverage: float) -> float:
+    """Return the true gap whose edge-model reading is ``target_mm`` (``target`` at c = 1)."""
+    if coverage >= 1.0:
+        return target_mm
+    # the reading is monotonic in the gap and >= it (models/sensor.py), so the root is in
+    # [0, target]
+    return float(brentq(lambda g: sensor.apparent_gap_mm(g, coverage) - target_mm,
+                        0.0, target_mm, xtol=1e-12))
+
+
+def plate_schedule(sc: Scenario, n: int, h_s: float) -> tuple[list[float], list[bool],
+                                                               list[float]]:
+    """Per tick: timeline kick before the tick, gas on in the plate step, the plate's kick.
+
+    The runner's rules (runner.run, Plate.step), which do not depend on the nozzle, so every
+    row shares them: ``gas`` events switch the gas and end its automatic start at
+    ``gas_on_s``; ``plate_kick`` events add to the plate's velocity at the start of their tick;
+    the plate's own kick is added in its step at ``kick_t_s``.
+    """
+    kick_before, gas, kick_own = [0.0] * n, [False] * n, [0.0] * n
+    plate = next((p for p in sc.sheet.profiles if type(p).__name__ == 'PlateParams'), None)
+    if plate is None:
+        return kick_before, gas, kick_own
+    gas_events: dict[int, list] = {}
+    for e in sc.timeline:
+        if e.name in ('gas', 'plate_kick'):
+            gas_events.setdefault(min(n - 1, int(round(e.t_s / h_s))), []).append(e)
+    i_gas = _first_tick(plate.gas_on_s, h_s)
+    i_kick = -1 if plate.kick_t_s is None else _first_tick(plate.kick_t_s, h_s)
+    gas_on, gas_auto = i_gas == 0, True
+    for i in range(n):
+        for e in gas_events.get(i, ()):
+            if e.name == 'plate_kick':
+                kick_before[i] += e.args['velocity_mm_s']
+            else:
+                gas_on, gas_auto = e.args['on'], False
+        if gas_auto and not gas_on and i >= i_gas:
+            gas_on = True
+        gas[i] = gas_on
+        if i == i_kick:
+            kick_own[i] = plate.kick_velocity_mm_s
+    return kick_before, gas, kick_own
 
 
 def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
@@ -101,10 +157,17 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
     for e in sorted((e for e in sc.timeline if e.name == 'set_target'), key=lambda e: e.t_s):
         targets[min(n - 1, int(round(e.t_s / h_s))):] = e.args['target_gap_mm']
     targets_l = targets.tolist()
+    cov = schedule(n, h_s, sc.initial_coverage,
+                   [(e.t_s, e.args['value'], e.args['ramp_s']) for e in sc.timeline
+                    if e.name == 'coverage'])
+    cov_l = cov.tolist()
     sheet, sensor = draw_world(sc, n, h_s)  # the runner's world
     base = sheet.base_mm
     s_gain, s_noise, s_alpha = sensor._gain, sensor._noise, sensor._alpha
     s_q, s_rmax, s_rmin = sc.sensor.quant_mm, sc.sensor.range_max_mm, sc.sensor.range_min_mm
+    # the edge model's constants (Sensor.measure)
+    s_gf, s_step, s_inv_step = sensor._gf, sensor._step, sensor._inv_step
+    s_eps, s_cum, s_k_last = np.asarray(sensor._eps), np.asarray(sensor._cum), sensor._k_last
     e_res = sc.encoder.resolution_mm
     ap = sc.axis
     a = math.exp(-h_s / ap.t1_s)  # models/axis.py, exact ZOH of b0/(s(T1 s + 1))
@@ -113,8 +176,16 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
     u_max, dv_max, half_h = ap.v_max_mm_s / ap.b0, ap.a_max_mm_s2 * h_s, 0.5 * h_s
     delay = [np.zeros(n_rows) for _ in range(ap.dead_time_ticks)]
     k_delay = 0
+    plate = sheet.plate
+    if plate is not None:
+        p00, p01, p10, p11, pg0, pg1 = plate.coefficients()
+        p_k, p_g0 = plate.gas_k, plate.gas_g0
+        kick_before, gas_l, kick_own = plate_schedule(sc, n, h_s)
+    p_y = np.zeros(n_rows)  # the plate of each row (Plate.y_mm, v_mm_s)
+    p_v = np.zeros(n_rows)
 
-    x = np.full(n_rows, float(base[0]) + target)  # followed: the nozzle at the target gap
+    gap0 = followed_gap_mm(sensor, target, cov_l[0])
+    x = np.full(n_rows, float(base[0]) + gap0)  # followed: the nozzle reads the target
     v = np.zeros(n_rows)
     s_y: np.ndarray | None = None
     r_gap = np.empty((n, n_rows))
@@ -123,9 +194,21 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
     controller.reset(np.full(n_rows, target), np.zeros(n_rows), target, enc0)
     wall0 = time.perf_counter()
     for i in range(n):
-        gap = x - base[i]
-        # Sensor.measure at full coverage (models/sensor.py), on arrays
-        r = gap * s_gain[i]
+        if plate is not None:
+            if kick_before[i] != 0.0:
+                p_v = p_v + kick_before[i]  # a timeline plate_kick (Plate.kick)
+            gap = x - (base[i] + p_y)
+        else:
+            gap = x - base[i]
+        # Sensor.measure (models/sensor.py), on arrays
+        c = cov_l[i]
+        if c >= 1.0:
+            r = gap * s_gain[i]
+        else:  # the edge model; c >= min_coverage (check_batchable)
+            g = np.where(gap > 0.0, gap, 0.0)
+            k = np.minimum((g * s_inv_step).astype(np.int64), s_k_last)
+            r = (g * (g + s_gf) / (g + c * s_gf) + (1.0 - c)
+                 * (s_cum[k] + s_eps[k] * (g - k * s_step))) * s_gain[i]
         if s_alpha != 0.0:
             r = r if s_y is None else s_alpha * s_y + (1.0 - s_alpha) * r
             s_y = r
@@ -148,5 +231,11 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
         v_lim = v + np.where(dv > 0.0, dv_max, -dv_max)
         x = np.where(inside, x + kxv * v + kxu * u, x + half_h * (v + v_lim))
         v = np.where(inside, v1, v_lim)
+        if plate is not None:
+            # Plate.step (models/sheet.py): gas push held at this tick's gap, per row
+            if kick_own[i] != 0.0:
+                p_v = p_v + kick_own[i]
+            pa = -p_k / (np.where(gap > 0.0, gap, 0.0) + p_g0) if gas_l[i] else 0.0
+            p_y, p_v = p00 * p_y + p01 * p_v + pg0 * pa, p10 * p_y + p11 * p_v + pg1 * pa
     wall = time.perf_counter() - wall0
-    return BatchResult(np.arange(n) * h_s, r_gap, r_cmd, targets, wall)
+    return BatchResult(np.arange(n) * h_s, r_gap, r_cmd, targets, cov, wall)

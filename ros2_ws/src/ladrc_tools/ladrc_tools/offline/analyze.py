@@ -2,7 +2,8 @@
 
 The loop is :mod:`ladrc_follow.control.loop`'s: the controller's own tick, linearized, around
 the axis model ``b0/(s(T1 s + 1))`` with dead time and sensor lag, at the controller's period.
-Writes ``bode.png`` (loop gain L, S and T, sheet-to-gap), ``analysis.md`` and
+Writes ``bode.png`` (loop gain L, S and T, sheet-to-gap, target-to-gap through the TD, and
+the LADRC's observer: disturbance estimate / disturbance), ``analysis.md`` and
 ``analysis.json`` into the output folder (built under a temporary name, renamed when
 complete).
 """
@@ -14,7 +15,13 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ladrc_follow.control.loop import AxisModel, LoopAnalysis, analyse_params
+from ladrc_follow.control.loop import (
+    AxisModel,
+    LoopAnalysis,
+    ObserverAnalysis,
+    analyse_observer,
+    analyse_params,
+)
 from ladrc_follow.control.params import ControllerParams
 import numpy as np
 
@@ -22,12 +29,15 @@ from .outdir import building
 from .report import strict_json
 
 
-def figures(an: LoopAnalysis) -> dict[str, Any]:
-    """Return the loop's figures, rounded for reading (JSON)."""
-    out = {}
-    for k, v in an.figures().items():
-        out[k] = round(v, 4) if isinstance(v, float) and math.isfinite(v) else v
-    return out
+def figures(an: LoopAnalysis, obs: ObserverAnalysis | None = None) -> dict[str, Any]:
+    """Return the loop's (and the observer's) figures, rounded for reading (JSON)."""
+    def r(v: Any) -> Any:
+        if isinstance(v, list):
+            return [r(x) for x in v]
+        return round(v, 4) if isinstance(v, float) and math.isfinite(v) else v
+
+    items = {**an.figures(), **(obs.figures() if obs is not None else {})}
+    return {k: r(v) for k, v in items.items()}
 
 
 def _db(x: np.ndarray) -> np.ndarray:
@@ -35,8 +45,9 @@ def _db(x: np.ndarray) -> np.ndarray:
         return 20 * np.log10(np.abs(x))
 
 
-def plot(an: LoopAnalysis, path: Path, title: str) -> None:
-    """Bode plots of L, S, T and the sheet-to-gap response into ``path`` (PNG)."""
+def plot(an: LoopAnalysis, path: Path, title: str, obs: ObserverAnalysis | None = None
+         ) -> None:
+    """Bode plots of L, S, T, sheet and target to gap, the observer, into ``path`` (PNG)."""
     import matplotlib
 
     matplotlib.use('Agg')
@@ -62,6 +73,10 @@ def plot(an: LoopAnalysis, path: Path, title: str) -> None:
     ax[2].semilogx(f, _db(an.sensitivity), label='|S| = |1/(1+L)|')
     ax[2].semilogx(f, _db(an.complementary), label='|T| = |L/(1+L)|')
     ax[2].semilogx(f, _db(an.sheet_to_gap), ls='--', label='|sheet → gap|')
+    ax[2].semilogx(f, _db(an.reference_to_gap), ls='-.', label='|target → gap| (through the TD)')
+    if obs is not None:
+        ax[2].semilogx(obs.f_hz, _db(obs.disturbance_estimate), ls=':',
+                       label='|ESO: disturbance estimate / disturbance|')
     ax[2].axhline(-3, color='k', lw=0.5, ls=':')
     ax[2].set_ylim(-60, 15)
     ax[2].set_ylabel('dB')
@@ -89,12 +104,19 @@ def markdown(fig: dict[str, Any], params_source: str, mode: str, axis: AxisModel
             ('lower gain margin [dB]', fig['lower_gain_margin_db']),
             ('Ms = max |S|', fig['ms_peak']),
             ('at [Hz]', fig['ms_hz']),
-            ('bandwidth, |T| = −3 dB [Hz]', fig['bandwidth_hz'])]
+            ('bandwidth, |T| = −3 dB [Hz]', fig['bandwidth_hz']),
+            ('reference bandwidth, target → gap −3 dB [Hz]', fig['reference_bandwidth_hz'])]
+    if 'eso_bandwidth_hz' in fig:
+        rows += [('ESO disturbance-estimation bandwidth, −3 dB [Hz]', fig['eso_bandwidth_hz']),
+                 ('ESO error-dynamics poles [Hz]', ', '.join(
+                     f'{v:g}' for v in fig['eso_error_poles_hz'])),
+                 ('ESO error-dynamics spectral radius', fig['eso_error_spectral_radius'])]
     lines = ['# Loop analysis', '',
              f'Controller: {mode} ({params_source}); axis b0 = {axis.b0:g}, T1 = '
              f'{axis.t1_s * 1e3:g} ms, dead time {axis.dead_ticks} tick(s), sensor lag '
-             f'{axis.lag_s * 1e3:g} ms. The loop is linear: the TD at rest, the limits '
-             'inactive (small signals), the Kalman filter at its steady-state gain.', '',
+             f'{axis.lag_s * 1e3:g} ms. The loop is linear: the limits inactive (small '
+             'signals), the Kalman filter at its steady-state gain; the TD (linear) shapes '
+             'the target outside the feedback loop.', '',
              '| figure | value |', '| --- | --- |']
     lines += [f'| {k} | {f(v)} |' for k, v in rows]
     gate = ('passes' if fig['gate_passed'] else 'fails:\n\n' + '\n'.join(
@@ -111,7 +133,8 @@ def write_analysis(params: ControllerParams, params_source: str, mode: str | Non
 
     mode = mode or params.follow.controller
     an = analyse_params(params, axis, mode)
-    fig = figures(an)
+    obs = analyse_observer(params) if mode == 'ladrc' else None
+    fig = figures(an, obs)
     # the gate's verdict on the set as it would go live (its own axis model: stability.*)
     reasons = stability_reasons(params)
     fig['gate_passed'] = not reasons
@@ -120,7 +143,7 @@ def write_analysis(params: ControllerParams, params_source: str, mode: str | Non
         raise FileExistsError(f'{out_dir} exists already: outputs are never overwritten')
     with building(out_dir) as tmp:
         plot(an, tmp / 'bode.png', f'{mode}: PM {fig["phase_margin_deg"]}°, '
-             f'GM {fig["gain_margin_db"]} dB, Ms {fig["ms_peak"]}')
+             f'GM {fig["gain_margin_db"]} dB, Ms {fig["ms_peak"]}', obs)
         (tmp / 'analysis.md').write_text(markdown(fig, params_source, mode, axis),
                                          encoding='utf-8')
         (tmp / 'analysis.json').write_text(json.dumps(strict_json(

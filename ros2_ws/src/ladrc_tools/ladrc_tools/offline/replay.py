@@ -540,7 +540,7 @@ class Replay:
     def batches(self, progress: Callable[[int, int], None] | None = None
                 ) -> Iterator[tuple[RecordedBatch, ReplayBatch]]:
         """Step a fresh controller over the recording; yield each batch and what it sent."""
-        ctl = FollowController(self.params, mode=self.mode)
+        ctl = FollowController(self.params, mode=self.mode, gate=False)  # as recorded
         events = self.rec.events
         n_ev = len(events)
         j = 0

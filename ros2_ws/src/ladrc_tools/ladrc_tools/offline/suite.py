@@ -285,7 +285,7 @@ def _run_one(job: tuple[str, str, dict, bool]) -> SuiteRow:
         # as the seed did (docs/safety.md has what the guard does in them)
         params_dict = {**params_dict, 'edge': {**params_dict['edge'], 'enabled': False}}
     params = params_from_dict(params_dict, gate=False)  # as variant_params
-    controller = FollowController(params, mode=VARIANTS[variant].mode)
+    controller = FollowController(params, mode=VARIANTS[variant].mode, gate=False)
     result = run(sc, controller, record_internals=True)
     return measure(result, sc.name, variant, controller.fault_reason)
 

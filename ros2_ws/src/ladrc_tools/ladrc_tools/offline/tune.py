@@ -4,18 +4,26 @@ The grid spans the observer bandwidth ω0 (``eso.gains: bandwidth``), the gain `
 ``eso.b0`` and the second TD's speed factor ``td_b.r_per_s`` around a base set. Every grid
 set is validated and put through the stability gate
 (:mod:`ladrc_follow.control.stability`); the sets that pass run together, as rows of one batch
-(:mod:`ladrc_sim.headless.batch`), through each chosen scenario. Two scores per set, averaged
-over the scenarios: the **error RMS** (true gap − target, from 0.2 s on: tracking and
-rejection of the sheet's motion together) and the **chatter** (RMS of the command's content
-above 20 Hz). The sets no other set beats in both are the Pareto front; the chosen set is the
-front's point with the least sum of the two scores, each divided by its smallest value on
-the front. Written: ``tuned.yaml`` (a parameter file the node, ``simulate`` and the suite
-load), ``tune.md``, ``tune.json``, ``pareto.png``.
+(:mod:`ladrc_sim.headless.batch`), through each chosen scenario. The scenarios fall in three
+classes, and each class gives its own scores (averaged over its scenarios, from 0.2 s on):
+
+* **tracking** (the target changes): ``tracking_rms_mm``, true gap − target RMS;
+* **rejection** (the target stays, the sheet moves): ``rejection_rms_mm``, the same RMS;
+* **edge** (coverage below 1 at some time: the reading is not the gap there, so the gap error
+  says nothing): ``edge_chatter_mm_s``, the command's RMS above 20 Hz (the notes' edge-step
+  chatter, §5.3 item 3), and the closest approach ``edge_min_gap_mm`` (reported);
+
+and ``chatter_mm_s``, the command's RMS above 20 Hz on the tracking and rejection scenarios.
+A set whose nozzle touches the sheet in any scenario is out, with the scenario and time. The
+sets no other set beats in every score are the Pareto front; the chosen set is the front's
+point with the least sum of the scores, each divided by its smallest value on the front.
+Written: ``tuned.yaml`` (a parameter file the node, ``simulate`` and the suite load),
+``tune.md``, ``tune.json``, ``pareto.png``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import itertools
 import json
 import math
@@ -26,6 +34,7 @@ from ladrc_follow.control.ladrc import LADRC
 from ladrc_follow.control.params import ControllerParams, ParameterError, check, dump_params
 from ladrc_follow.control.stability import stability_reasons
 from ladrc_sim.headless.batch import run_batch
+from ladrc_sim.headless.scenario import load_scenario
 import numpy as np
 
 from .outdir import building
@@ -34,6 +43,8 @@ from .report import strict_json
 SETTLE_S = 0.2
 """The first 0.2 s of each run (the TD's start) count in no score."""
 CHATTER_HZ = 20.0
+OBJECTIVES = ('tracking_rms_mm', 'rejection_rms_mm', 'chatter_mm_s', 'edge_chatter_mm_s')
+"""The scores the Pareto front is taken over (module docstring); lower is better."""
 
 
 @dataclass
@@ -46,9 +57,21 @@ class Candidate:
     td_r_per_s: float
     params: ControllerParams | None
     rejected: str = ''
-    error_rms_mm: float = math.nan
-    chatter_mm_s: float = math.nan
+    scores: dict[str, float] = field(default_factory=dict)  # OBJECTIVES that were measured
+    edge_min_gap_mm: float = math.nan
     front: bool = False
+
+    @property
+    def error_rms_mm(self) -> float:
+        """Gap error RMS over the tracking and rejection scenarios (mean of the two)."""
+        e = [self.scores[k] for k in ('tracking_rms_mm', 'rejection_rms_mm')
+             if k in self.scores]
+        return float(np.mean(e)) if e else math.nan
+
+    @property
+    def chatter_mm_s(self) -> float:
+        """Command RMS above CHATTER_HZ away from edges (at edges if there is nothing else)."""
+        return self.scores.get('chatter_mm_s', self.scores.get('edge_chatter_mm_s', math.nan))
 
 
 def parse_range(text: str, what: str) -> list[float]:
@@ -78,7 +101,7 @@ def _chatter(u: np.ndarray, h_s: float) -> np.ndarray:
 
 
 def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
-          b0s: Sequence[float], scenarios: Sequence[str],
+          b0s: Sequence[float], scenarios: Sequence[Any],
           progress: Callable[[int, int], None] | None = None,
           td_rs: Sequence[float] | None = None) -> list[Candidate]:
     """Build, gate and run the grid; mark the Pareto front.
@@ -107,36 +130,74 @@ def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
     if not live:
         return cands
     batch = LADRC.batch([c.params for c in live])
-    err = np.zeros(len(live))
-    chat = np.zeros(len(live))
+    sums: dict[str, np.ndarray] = {}
+    counts: dict[str, int] = {}
+    edge_min = np.full(len(live), np.inf)
+    contact = [''] * len(live)
+    i0 = int(round(SETTLE_S / base.h_s))
     for k, name in enumerate(scenarios):
         res = run_batch(name, batch, len(live))
-        i0 = int(round(SETTLE_S / base.h_s))
-        e = res.true_gap_mm[i0:] - res.target_gap_mm[i0:, None]
-        err += np.sqrt(np.mean(e * e, axis=0)) / len(scenarios)
-        chat += _chatter(res.command_mm_s[i0:], base.h_s) / len(scenarios)
+        label = getattr(name, 'name', name)
+        kind = scenario_class(res)
+        gap, cmd = res.true_gap_mm, res.command_mm_s
+        for j in np.flatnonzero(np.any(gap <= 0.0, axis=0)):
+            if not contact[j]:
+                t_hit = float(res.t_s[np.argmax(gap[:, j] <= 0.0)])
+                contact[j] = f'contact with the sheet in {label} at {t_hit:.3f} s'
+        found = {'edge_chatter_mm_s': _chatter(cmd[i0:], base.h_s)} if kind == 'edge' else {
+            f'{kind}_rms_mm': np.sqrt(np.mean((gap[i0:] - res.target_gap_mm[i0:, None]) ** 2,
+                                              axis=0)),
+            'chatter_mm_s': _chatter(cmd[i0:], base.h_s)}
+        if kind == 'edge':
+            edge_min = np.minimum(edge_min, gap[i0:].min(axis=0))
+        for key, val in found.items():
+            sums[key] = sums.get(key, 0.0) + val
+            counts[key] = counts.get(key, 0) + 1
         if progress is not None:
             progress(k + 1, len(scenarios))
-    for c, e_, ch in zip(live, err, chat, strict=True):
-        c.error_rms_mm, c.chatter_mm_s = float(e_), float(ch)
-    for c in live:
-        c.front = not any(o.error_rms_mm <= c.error_rms_mm and o.chatter_mm_s <= c.chatter_mm_s
-                          and (o.error_rms_mm < c.error_rms_mm
-                               or o.chatter_mm_s < c.chatter_mm_s) for o in live)
+    for j, c in enumerate(live):
+        c.scores = {key: float(sums[key][j] / counts[key]) for key in OBJECTIVES if key in sums}
+        c.edge_min_gap_mm = float(edge_min[j]) if np.isfinite(edge_min[j]) else math.nan
+        if contact[j]:
+            c.rejected, c.params = contact[j], None
+    ran = [c for c in live if c.params is not None]
+    for c in ran:
+        c.front = not any(_dominates(o, c) for o in ran)
     return cands
+
+
+def scenario_kind(name: str) -> str:
+    """Return the class of a library scenario without running it (as :func:`scenario_class`)."""
+    sc = load_scenario(name)
+    if sc.initial_coverage < 1.0 or any(e.name == 'coverage' and e.args['value'] < 1.0
+                                        for e in sc.timeline):
+        return 'edge'
+    return 'tracking' if any(e.name == 'set_target' for e in sc.timeline) else 'rejection'
+
+
+def scenario_class(res: Any) -> str:
+    """Return ``edge``, ``tracking`` or ``rejection`` for a batch run (module docstring)."""
+    if np.any(res.coverage < 1.0):
+        return 'edge'
+    return 'tracking' if np.any(res.target_gap_mm != res.target_gap_mm[0]) else 'rejection'
+
+
+def _dominates(o: Candidate, c: Candidate) -> bool:
+    """Return whether ``o`` is no worse than ``c`` in every score and better in one."""
+    pairs = [(o.scores[k], c.scores[k]) for k in c.scores]
+    return all(a <= b for a, b in pairs) and any(a < b for a, b in pairs)
 
 
 def scores(cands: Sequence[Candidate]) -> dict[int, float]:
     """Return the choice's score of each point that ran, keyed by its index in ``cands``.
 
-    Error RMS and chatter, each divided by its smallest value on the Pareto front, summed.
+    Each of the point's scores divided by its smallest value on the Pareto front, summed.
     """
     front = [c for c in cands if c.front]
     if not front:
         return {}
-    e_min = min(c.error_rms_mm for c in front) or 1e-12
-    ch_min = min(c.chatter_mm_s for c in front) or 1e-12
-    return {i: c.error_rms_mm / e_min + c.chatter_mm_s / ch_min
+    least = {k: min(c.scores[k] for c in front) or 1e-12 for k in front[0].scores}
+    return {i: sum(c.scores[k] / least[k] for k in least)
             for i, c in enumerate(cands) if c.params is not None}
 
 
@@ -177,36 +238,45 @@ def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path
     if chosen is None:
         raise ValueError('no grid point passed the validation and the stability gate '
                          f'(first reason: {cands[0].rejected if cands else "empty grid"})')
+    keys = [k for k in OBJECTIVES if k in chosen.scores]
     rows = [{'w0_rad_s': c.w0_rad_s, 'kp': c.kp, 'b0': c.b0, 'td_r_per_s': c.td_r_per_s,
-             'rejected': c.rejected or None,
+             'rejected': c.rejected or None, **{k: c.scores.get(k) for k in keys},
              'error_rms_mm': c.error_rms_mm, 'chatter_mm_s': c.chatter_mm_s,
-             'front': c.front} for c in cands]
+             'edge_min_gap_mm': c.edge_min_gap_mm, 'front': c.front} for c in cands]
     live = [c for c in cands if c.params is not None]
     summary = {'grid': len(cands), 'gated_in': len(live), 'front': sum(c.front for c in cands),
-               'scenarios': list(scenarios),
+               'scenarios': list(scenarios), 'objectives': keys,
                'chosen': {'w0_rad_s': chosen.w0_rad_s, 'kp': chosen.kp, 'b0': chosen.b0,
-                          'td_r_per_s': chosen.td_r_per_s,
+                          'td_r_per_s': chosen.td_r_per_s, **chosen.scores,
                           'error_rms_mm': chosen.error_rms_mm,
-                          'chatter_mm_s': chosen.chatter_mm_s},
+                          'chatter_mm_s': chosen.chatter_mm_s,
+                          'edge_min_gap_mm': chosen.edge_min_gap_mm},
                'worst_error_rms_mm': max(c.error_rms_mm for c in live),
                'chosen_score': min(scores(cands).values()),
                'worst_score': max(scores(cands).values())}
+    names = {'tracking_rms_mm': 'tracking RMS [mm]', 'rejection_rms_mm': 'rejection RMS [mm]',
+             'chatter_mm_s': 'chatter [mm/s]', 'edge_chatter_mm_s': 'edge chatter [mm/s]'}
+    by_class = {}
+    for name in scenarios:
+        by_class.setdefault(scenario_kind(name), []).append(name)
     lines = ['# Tuning sweep', '',
-             f'{len(cands)} grid points, {len(live)} pass the validation and the stability '
-             f'gate, {summary["front"]} on the Pareto front; scores averaged over '
-             f'{", ".join(scenarios)} (batch closed loop, rows start followed).', '',
+             f'{len(cands)} grid points, {len(live)} pass the validation, the stability '
+             f'gate and the contact check, {summary["front"]} on the Pareto front (batch '
+             'closed loop, rows start followed). Scores averaged over the scenarios of their '
+             'class: ' + '; '.join(f'{k}: {", ".join(v)}' for k, v in by_class.items()) + '.',
+             '',
              f'Chosen: ω0 {chosen.w0_rad_s:g} rad/s, kp {chosen.kp:g} 1/s, b0 {chosen.b0:g}, '
              f'TD R {chosen.td_r_per_s:g} 1/s: '
-             f'error RMS {chosen.error_rms_mm:.4g} mm, chatter {chosen.chatter_mm_s:.4g} mm/s '
-             '(`tuned.yaml`).', '',
-             '| ω0 [rad/s] | kp [1/s] | b0 | TD R [1/s] | error RMS [mm] | chatter [mm/s] '
-             '| front | gate |',
-             '| --- | --- | --- | --- | --- | --- | --- | --- |']
+             + ', '.join(f'{names[k]} {chosen.scores[k]:.4g}' for k in keys)
+             + (f', closest approach at edges {chosen.edge_min_gap_mm:.3f} mm'
+                if math.isfinite(chosen.edge_min_gap_mm) else '') + ' (`tuned.yaml`).', '',
+             '| ω0 [rad/s] | kp [1/s] | b0 | TD R [1/s] | '
+             + ' | '.join(names[k] for k in keys) + ' | front | gate |',
+             '| --- | --- | --- | --- | ' + '--- | ' * len(keys) + '--- | --- |']
     for c in cands:
         lines.append(f'| {c.w0_rad_s:g} | {c.kp:g} | {c.b0:g} | {c.td_r_per_s:g} | '
-                     f'{c.error_rms_mm:.4g} | '
-                     f'{c.chatter_mm_s:.4g} | {"yes" if c.front else ""} | '
-                     f'{c.rejected or "passes"} |')
+                     + ''.join(f'{c.scores.get(k, math.nan):.4g} | ' for k in keys)
+                     + f'{"yes" if c.front else ""} | {c.rejected or "passes"} |')
     with building(out) as tmp:
         (tmp / 'tuned.yaml').write_text(dump_params(chosen.params), encoding='utf-8')
         (tmp / 'tune.json').write_text(json.dumps(strict_json({**summary, 'grid_points': rows}),
