@@ -190,6 +190,8 @@ def parameter_fuzz(rng: random.Random) -> tuple[int, int, int]:
             bad = ['nonsense', -7, 3.5]
         elif e.type is bool:
             bad = ['yes', 2, None]
+        elif e.type is str:  # sensor.table_file: a path
+            bad = [3, 1.5, None, True]
         else:
             lo, hi = spec.lower, spec.le
             bad = [math.inf, -math.inf, math.nan, 1e300, -1e300, 10 ** 400, hi * 2 + 1,

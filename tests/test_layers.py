@@ -23,7 +23,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
 PACKAGES = ('ladrc_follow', 'ladrc_sim', 'ladrc_tools')
-PURE_FOLDERS = ('control', 'models', 'headless', 'bags', 'offline')
+PURE_FOLDERS = ('control', 'models', 'headless', 'bags', 'offline', 'commissioning')
 
 # top-level module -> rosdep key / ROS package name in package.xml
 DEPEND_KEY = {

@@ -36,7 +36,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 # Every kind of event the replay must re-apply at its tick: a start, a machining flag on and
 # off (PID <-> LADRC hand-overs), a target change above the re-interpolation threshold, a
-# height compensation with its queue, a gradient follow with a delay and a drive fault.
+# height compensation with its queue, a target wave, a gradient follow with a delay and a
+# drive fault.
 SCENARIO = {
     'name': 'replay_test', 'duration_s': 2.6, 'seed': 3, 'initial_gap_mm': 2.0,
     'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
@@ -47,6 +48,8 @@ SCENARIO = {
         {'t_s': 0.7, 'do': 'set_target', 'target_gap_mm': 1.3},
         {'t_s': 1.2, 'do': 'height_compensation', 'offset_mm': 0.1},
         {'t_s': 1.4, 'do': 'machining', 'on': False},
+        {'t_s': 1.45, 'do': 'target_wave', 'kind': 'chirp', 'amp_mm': 0.05, 'freq_hz': 5.0,
+         'freq_end_hz': 20.0, 'duration_s': 0.1},
         {'t_s': 1.6, 'do': 'gradient_follow', 'target_gap_mm': 1.0, 'delay_s': 0.05},
         {'t_s': 1.9, 'do': 'sensor_dropout', 'duration_s': 0.004},
         {'t_s': 2.3, 'do': 'drive', 'enabled': True, 'fault': True},
@@ -78,6 +81,8 @@ def test_scenario_exercises_every_event(headless):
     h = result.h_s
     assert target[int(1.1 / h)] == pytest.approx(1.3)
     assert target[int(1.3 / h)] == pytest.approx(1.4)  # compensation applied
+    td = result.internals['td_x1_mm']  # the target wave (a chirp, SIN_GEN) moved the TD
+    assert np.ptp(td[int(1.46 / h):int(1.55 / h)]) > 0.02
     assert target[int(1.7 / h)] == pytest.approx(1.1)  # gradient target + compensation
     machining = result.internals['machining']
     assert machining[int(0.6 / h)] == 1 and machining[int(1.5 / h)] == 0
@@ -182,7 +187,9 @@ def test_missing_ticks_break_exact_replay_after_the_gap(headless):
 def test_event_fields_map_to_the_command_arguments():
     # Every command kind maps onto the controller's command signature (names and count).
     ev = RecordedEvent(tick=0, kind=0, value_mm=1.25, delay_s=0.5, velocity_mm_s=30.0,
-                       accel_mm_s2=400.0, flag=True)
+                       accel_mm_s2=400.0, flag=True,
+                       text='{"kind": "chirp", "freq_hz": 1.0, "freq_end_hz": 5.0, '
+                            '"duration_s": 2.0}')
     for kind, name in KIND_NAMES.items():
         if name == 'parameters':
             continue
@@ -193,6 +200,8 @@ def test_event_fields_map_to_the_command_arguments():
         'target_gap_mm': 1.25, 'delay_s': 0.5, 'velocity_mm_s': 30.0, 'accel_mm_s2': 400.0}
     assert event_command(replace(ev, kind=4))[1] == {'on': True}
     assert event_command(replace(ev, kind=5))[1] == {'offset_mm': 1.25, 'delay_s': 0.5}
+    assert event_command(replace(ev, kind=9))[1] == {  # the wave: amplitude + JSON text
+        'amp_mm': 1.25, 'kind': 'chirp', 'freq_hz': 1.0, 'freq_end_hz': 5.0, 'duration_s': 2.0}
 
 
 def test_set_overrides_are_checked(headless):

@@ -63,7 +63,17 @@ def test_defaults_and_event_sorting():
     assert sc.timeline[1].args == {'target_gap_mm': 2.0, 'delay_s': 0.0}
     assert sc.duration_s == 1.0 and isinstance(sc.duration_s, float)
     assert set(COMMANDS) == {'start_follow', 'set_target', 'stop_follow', 'machining',
-                             'height_compensation', 'gradient_follow'}
+                             'height_compensation', 'gradient_follow', 'target_wave'}
+    wave = scenario_from_dict({'name': 'w', 'duration_s': 1, 'timeline': [
+        {'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1},
+        {'t_s': 0.2, 'do': 'target_wave', 'amp_mm': 0.1, 'freq_hz': 5}]})
+    assert wave.timeline[1].args == {'kind': 'sine', 'amp_mm': 0.1, 'freq_hz': 5.0,
+                                     'freq_end_hz': 0.0, 'duration_s': 0.0}
+    with pytest.raises(ScenarioError, match=r"timeline\[1\]\.kind: 'triangle' is not one of sine"):
+        scenario_from_dict({'name': 'w', 'duration_s': 1, 'timeline': [
+            {'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1},
+            {'t_s': 0.2, 'do': 'target_wave', 'kind': 'triangle', 'amp_mm': 0.1,
+             'freq_hz': 5}]})
 
 
 def test_missing_file_and_empty_file(tmp_path):

@@ -27,6 +27,7 @@ setup(
             'ladrc = ladrc_tools.cli:main',
             'recorder = ladrc_tools.node.recorder_node:main',
             'bringup = ladrc_tools.bringup.bringup:main',
+            'calibrate_node = ladrc_tools.node.calibrate_node:main',
         ],
     },
 )

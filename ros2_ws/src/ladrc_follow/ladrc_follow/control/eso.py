@@ -238,6 +238,48 @@ def eso2_zoh_step(ops, z1, z2, z3, y, u, l1, l2, l3, b0, h_s, ext_limit=None,
     return p1 + l1 * eps, p2 + l2 * eps, nz3
 
 
+def fal_alphas(n: int, mode: str, alpha: float) -> tuple[float, ...]:
+    """Exponents α_1..α_{n+1} of the fal-ESO's corrections (1 = linear).
+
+    'all': α^i on state i (paper eq. 38: 0.5, 0.25, 0.125, 0.0625 for α = 0.5); 'disturbance':
+    α on the extended state only (notes §5.2 fix 3); 'off': all linear.
+    """
+    if mode == 'all':
+        return tuple(alpha ** (i + 1) for i in range(n + 1))
+    if mode == 'disturbance':
+        return (1.0,) * n + (alpha,)
+    return (1.0,) * (n + 1)
+
+
+def eso1_fal_step(ops, z1, z2, y, u, b1, b2, b0, h_s, g, ext_limit=None, ext_rate_limit=None):
+    """Order-1 fal-ESO, explicit Euler (paper eq. 4).
+
+    ε = y − z1, (g1, g2) = g(ε); z1 += h(z2 + β1 g1 + b0 u); z2 += h β2 g2. With
+    g(ε) = (ε, ε) it is :func:`eso1_euler_step`.
+    """
+    g1, g2 = g(y - z1)
+    nz1 = z1 + h_s * (z2 + b1 * g1 + b0 * u)
+    nz2 = z2 + h_s * b2 * g2
+    if ext_limit is not None or ext_rate_limit is not None:
+        nz2 = _limit_ext(ops, z2, nz2, ext_limit, ext_rate_limit)
+    return nz1, nz2
+
+
+def eso2_fal_step(ops, z1, z2, z3, y, u, b1, b2, b3, b0, h_s, g, ext_limit=None,
+                  ext_rate_limit=None):
+    """Order-2 fal-ESO, explicit Euler (paper eq. 4).
+
+    (g1, g2, g3) = g(y − z1); z1 += h(z2 + β1 g1); z2 += h(z3 + β2 g2 + b0 u); z3 += h β3 g3.
+    """
+    g1, g2, g3 = g(y - z1)
+    nz1 = z1 + h_s * (z2 + b1 * g1)
+    nz2 = z2 + h_s * (z3 + b2 * g2 + b0 * u)
+    nz3 = z3 + h_s * b3 * g3
+    if ext_limit is not None or ext_rate_limit is not None:
+        nz3 = _limit_ext(ops, z3, nz3, ext_limit, ext_rate_limit)
+    return nz1, nz2, nz3
+
+
 def compensate1(ops, z1, z2, e1, b1):
     """Paper eq. 22 for order 1: z' = z + (e1, β1·e1), e1 = y − z1 at the same instant."""
     return z1 + e1, z2 + b1 * e1
@@ -385,7 +427,8 @@ def _check_betas(n: int, betas: Sequence[float]) -> tuple[float, ...]:
 __all__ = [
     'ARRAY', 'LinearESO', 'NonlinearESO', 'SCALAR', 'bandwidth_gains', 'compensate1',
     'compensate2',
-    'continuous_matrices', 'eso1_euler_step', 'eso1_zoh_step', 'eso2_euler_step',
+    'continuous_matrices', 'eso1_euler_step', 'eso1_fal_step', 'eso1_zoh_step',
+    'eso2_euler_step', 'eso2_fal_step', 'fal_alphas',
     'eso2_zoh_step', 'euler_is_stable', 'euler_stability_limit', 'seed_gains_order1',
     'static_error', 'zoh_gains', 'zoh_gains_from_betas', 'zoh_gains_from_poles',
     'zoh_matrices',

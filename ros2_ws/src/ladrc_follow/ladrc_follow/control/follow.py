@@ -39,9 +39,12 @@ from typing import Any, NamedTuple
 from .edge import EDGE, FALLING, UNVERIFIED, VERIFY, EdgeGuard
 from .follow_params import FollowParams
 from .interp import Interpolator, InterpParams
+from .kalman import kalman_gated_step
 from .ladrc import LADRC
+from .ops import SCALAR
 from .params import ControllerParams, check, check_gate
 from .pid import FollowPID
+from .target_wave import TargetWave
 
 __all__ = [
     'FollowState', 'FollowParams', 'FollowController', 'TickInput', 'GAP_STATUS_OK',
@@ -98,6 +101,7 @@ COMMANDS = {
     'height_compensation': ('offset_mm', 'delay_s'),
     'gradient_follow': ('target_gap_mm', 'delay_s', 'velocity_mm_s', 'accel_mm_s2'),
     'reset_fault': (),
+    'target_wave': ('kind', 'amp_mm', 'freq_hz', 'freq_end_hz', 'duration_s'),
 }
 
 
@@ -119,6 +123,9 @@ class TickInput(NamedTuple):
     drive_enabled: bool
     drive_fault: bool
     gap_status: int = 0
+
+
+_PK_RESET = (math.nan, 0.0, 0, 0.0)  # the PID's Kalman filter restarts on the next reading
 
 
 def _real(x: Any) -> bool:
@@ -189,6 +196,11 @@ class FollowController:
         self._fault_reason = ''
         self._comp: list[tuple[int, float]] = []
         self._gradients: list[tuple[int, float, float, float]] = []
+        self._wave: TargetWave | None = None  # test signal on the target (seed SIN_GEN)
+        self._fresh = True  # this tick's gap is a new sample (not the encoder prediction)
+        self._closing = False  # a step run by the law (reinterpolate false) is closing in
+        self._pk = _PK_RESET  # the PID's Kalman state: x, P, outliers, encoder
+        self._wave_k = 0
         self._capped = False
         self._retracting = False
         self._retracted = False  # a retract has run since the fault latched
@@ -243,7 +255,14 @@ class FollowController:
         self._stale_s = f.stale_timeout_s
         self._coll = f.collision_gap_mm
         self._window = f.handover_window_mm
-        self._retarget = f.retarget_threshold_mm
+        self._retarget = f.retarget_threshold_mm if f.reinterpolate else math.inf
+        self._retarget_mm = f.retarget_threshold_mm
+        self._target_lim = (f.min_target_gap_mm, f.max_target_gap_mm)
+        kp = p.kalman
+        # the gated Kalman filter on the PID's gap too (kalman.on_pid; control/kalman.py)
+        self._pid_kalman = kp.enabled and kp.on_pid
+        self._pk_consts = (kp.q_mm2, kp.r_mm2, kp.p0_mm2, kp.gate_mm,
+                           float(kp.gate_confirm_ticks))
         self._tol = p.pid.followed_tol_mm
         self._wide_tol = f.followed_wide_tol_mm
         self._hold_ticks = max(1, int(round(p.pid.followed_hold_s / h)))
@@ -277,6 +296,7 @@ class FollowController:
         b, self._pending_build = self._pending_build, None
         old_interp, custom = self._interp, self._interp is not self._interp_default
         self._install(b)
+        self._pk = _PK_RESET  # the PID's Kalman filter restarts with the new set
         st, u = self._state, self._u
         gap, enc, target = self._last_gap, self._last_enc, self._target_eff
         if custom:
@@ -360,7 +380,10 @@ class FollowController:
         ``start_follow(target_gap_mm)``, ``stop_follow()``, ``set_target(target_gap_mm)``,
         ``machining(on)``, ``height_compensation(offset_mm, delay_s=0)``,
         ``gradient_follow(target_gap_mm, delay_s, velocity_mm_s=0, accel_mm_s2=0)``,
-        ``reset_fault()``. A rejected command changes nothing; the message says why.
+        ``reset_fault()``, ``target_wave(kind='sine', amp_mm, freq_hz, freq_end_hz=0,
+        duration_s=0)`` (a test signal on the target once followed, :mod:`.target_wave`;
+        ``amp_mm`` 0 ends a running one). A rejected command changes nothing; the message
+        says why.
         """
         if name not in COMMANDS:
             return False, f'unknown command {name!r} (known: {", ".join(COMMANDS)})'
@@ -440,6 +463,28 @@ class FollowController:
                     return False, (f'gradient_follow: {key} must be 0 (default) or within '
                                    f'{low:g}..{top:g}, got {v!r}')
             msg = f'gradient follow to {kwargs["target_gap_mm"]:g} mm in {kwargs["delay_s"]:g} s'
+        elif name == 'target_wave' and kwargs.get('amp_mm') == 0.0:
+            kwargs = {'kind': 'sine', 'amp_mm': 0.0, 'freq_hz': 1.0, 'freq_end_hz': 0.0,
+                      'duration_s': 0.0}
+            msg = 'target wave off'
+        elif name == 'target_wave':
+            wave = TargetWave(**kwargs)
+            why = wave.problems()
+            if why:
+                return False, 'target_wave: ' + '; '.join(why)
+            if not following:
+                return False, f'target_wave: not following ({FollowState(st).name})'
+            if wave.amp_mm > 0.0:
+                target = next((a['target_gap_mm'] for n, a in reversed(self._pending)
+                               if n in ('start_follow', 'set_target')), self._target)
+                for sign in (-1.0, 1.0):
+                    why = self._check_target(name, target, self._offset + sign * wave.amp_mm)
+                    if why:
+                        return False, why
+            kwargs = {k: getattr(wave, k) for k in COMMANDS[name]}
+            msg = (f'{wave.kind} of {wave.amp_mm:g} mm at {wave.freq_hz:g} Hz on the target for '
+                   f'{wave.length_s:g} s once followed and not machining' if wave.amp_mm > 0.0
+                   else 'target wave off')
         else:  # reset_fault
             if st != _FAULT:
                 return False, f'reset_fault: no fault to reset (state {FollowState(st).name})'
@@ -474,6 +519,8 @@ class FollowController:
                     self._set_target(kw['target_gap_mm'])
             elif name == 'machining':
                 self._machining = kw['on']
+                if kw['on']:
+                    self._wave = None  # a test wave ends when machining starts (seed SIN_GEN)
             elif name == 'height_compensation':
                 if st in (_PID, _LADRC):
                     due = self._tick + int(round(kw['delay_s'] / self._h))
@@ -491,6 +538,11 @@ class FollowController:
                     while i > 0 and self._gradients[i - 1][0] > due:
                         i -= 1
                     self._gradients.insert(i, (due, kw['target_gap_mm'], v, a))
+            elif name == 'target_wave':
+                if following:
+                    wave = TargetWave(**kw)
+                    self._wave = wave if wave.amp_mm > 0.0 else None
+                    self._wave_k = 0
             elif name == 'reset_fault':
                 if st == _FAULT and not self._retracting:
                     self._state = _IDLE
@@ -504,6 +556,8 @@ class FollowController:
         self._comp = []
         self._gradients = []
         self._followed = False
+        self._wave = None
+        self._closing = False
         self._uncap()
 
     def _uncap(self) -> None:
@@ -516,10 +570,15 @@ class FollowController:
 
     def _change_eff(self, eff: float) -> None:
         old, self._target_eff = self._target_eff, eff
+        self._wave = None  # any change of the target ends a test wave (it was checked on it)
         st = self._state
         if (st == _PID or st == _LADRC) and abs(eff - old) > self._retarget:
             # seed comment in FS_PID_CONTROL: a large change is smoother interpolated
             self._enter_approach(self._last_gap, self._last_enc, None)
+        elif (st == _PID or st == _LADRC) and abs(eff - old) > self._retarget_mm:
+            # follow.reinterpolate false (seed): the law runs the step; the closing in is
+            # measured as on an approach (edge guard) until the gap reaches the target
+            self._closing = True
 
     # ------------------------------------------------------------------ transitions
     def _enter_approach(self, gap: float, enc: float, va: tuple[float, float] | None) -> None:
@@ -538,6 +597,9 @@ class FollowController:
         self._interp.reset(self._u)
         self._enc0 = enc
         self._guard.reset()
+        self._pk = _PK_RESET
+        self._wave = None  # a re-approach ends a test wave
+        self._closing = False
         target = self._target_eff
         self._dir = 1.0 if target >= gap else -1.0
         pid = self._pid
@@ -719,11 +781,13 @@ class FollowController:
             # no new sample since the last tick: the law never runs twice on one reading; the
             # encoder increment predicts the gap (notes §4, the Kalman predict step)
             self.counts['predicted'] += 1
+            self._fresh = False  # the Kalman filters only predict on this tick
             if self._jump_t0 == self._jump_t0:
                 return self._hold_up_only()  # still holding on a jumped reading
             gap = self._acc_gap + (enc - self._acc_enc)
         else:
             self._used_gstamp = gstamp
+            self._fresh = True
             if gap == self._acc_gap:
                 # bit-identical to the last new sample: a real reading has noise, so a run of
                 # them while the encoder moves is a frozen sensor with fresh stamps
@@ -755,7 +819,8 @@ class FollowController:
         st = self._state
         guard = self._guard
         # closing in is measured until followed (approach, then the PID's first settling)
-        verdict = guard.update(enc, gap, st == _PREINTERP or not self._followed)
+        verdict = guard.update(enc, gap, st == _PREINTERP or not self._followed
+                               or self._closing or self._wave is not None)
         if verdict == FALLING:
             # faster than a sheet falls: not followed down; closing in afterwards is probed
             self.counts['fall_hold'] += 1
@@ -799,6 +864,17 @@ class FollowController:
                                    f'{self._edge:g} mm)')
             self._surf_ref = ref + self._c_edge * (sf - ref)
         target = self._target_eff
+        if self._closing and abs(gap - target) <= self._tol:
+            self._closing = False
+        if self._wave is not None and self._followed and not self._machining:
+            # seed SIN_GEN: the test signal rides on the target once followed, not machining;
+            # never outside the allowed gaps, whatever changed since it was accepted
+            wave = self._wave
+            lo, hi = self._target_lim
+            target = min(max(target + wave.value_mm(self._wave_k * self._h), lo), hi)
+            self._wave_k += 1
+            if self._wave_k * self._h >= wave.length_s:
+                self._wave = None
         if st == _PID:
             if not self._followed:
                 tol = self._tol if self._approach_ticks < self._widen_ticks else self._wide_tol
@@ -825,6 +901,7 @@ class FollowController:
         if not self._use_ladrc or (self._machining and not self._ladrc_machining):
             # back to the PID, starting from the applied command (bumpless)
             self._pid.reset(pg, target, self._u, pe)
+            self._pk = _PK_RESET
             self._state = _PID
             return self._pid_tick(gap, enc, target)
         return self._ladrc_tick(gap, enc, target)
@@ -836,10 +913,24 @@ class FollowController:
             self._pid.set_suppress(self._machining)
             self._pid.enable_feed_forward(True)
 
+    def _pid_gap(self, gap: float, enc: float) -> float:
+        """Return the PID's gap: the reading, or its gated Kalman fusion (``kalman.on_pid``)."""
+        if not self._pid_kalman:
+            return gap
+        x, p, n, enc_prev = self._pk
+        q, r, p0, gate, confirm = self._pk_consts
+        if not x == x:  # (re)start on the reading, as the LADRC's filter does at its reset
+            self._pk = (gap, p0, 0, enc)
+            return gap
+        x, p, _, n = kalman_gated_step(SCALAR, x, p, n, gap, enc - enc_prev, self._fresh,
+                                       q, r, p0, gate, confirm)
+        self._pk = (x, p, n, enc)
+        return x
+
     def _pid_tick(self, gap: float, enc: float, target: float) -> float:
         self._pid_modes()
         pid = self._pid
-        u_c = pid.step(gap, enc, target)
+        u_c = pid.step(self._pid_gap(gap, enc), enc, target)
         u = self._limit(u_c)
         self._src = 2
         if u != pid.u:
@@ -847,7 +938,7 @@ class FollowController:
         return u
 
     def _ladrc_tick(self, gap: float, enc: float, target: float) -> float:
-        u_c = self._ladrc_step(gap, enc, target)
+        u_c = self._ladrc_step(gap, enc, target, self._fresh)
         u = self._limit(u_c)
         self._src = 3
         if u != u_c:

@@ -37,6 +37,11 @@ class FollowParams(Section):
                                        ge=0.0, le=20.0, seed='notes §3.5 UpdateCompHeightQueue')
     retarget_threshold_mm: float = param(1.0, 'mm', 'a target change above this '
                                          're-interpolates', gt=0.0, le=100.0, seed=_SM)
+    reinterpolate: bool = param(True, '', 'a target change above retarget_threshold_mm goes '
+                                'through the interpolated approach; false: straight to the '
+                                'PID/LADRC and its TD, as in the seed (its re-interpolation '
+                                "is commented out): for the notes' step experiments",
+                                seed='notes §3.5 FS_PID_CONTROL')
     handover_window_mm: float = param(1.0, 'mm', '|error| within which the approach hands '
                                       'over to the PID', gt=0.0, le=20.0, seed=_SM)
     approach_lag_compensation: bool = param(True, '', 'subtract the planned travel the '

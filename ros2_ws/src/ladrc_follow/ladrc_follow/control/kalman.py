@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+import numpy as np
+
 from .ops import SCALAR
 from .schema import Section, param
 
@@ -40,6 +42,15 @@ class KalmanParams(Section):
                          gt=0.0, le=100.0, seed='notes §4')
     p0_mm2: float = param(1e-4, 'mm²', 'variance assumed at (re)start',
                           ge=0.0, le=100.0, seed='notes §4')
+    gate_mm: float = param(0.0, 'mm', 'a reading wider than the prediction by more than this '
+                           'is an outlier: the estimate coasts on the encoder (one-sided: a '
+                           'closer reading is always taken; 0 = no gate, as the firmware)',
+                           ge=0.0, le=20.0, seed='docs/estimators.md')
+    gate_confirm_ticks: int = param(10, 'ticks', 'this many outliers in a row are a real '
+                                    'change (an edge, a ridge): the filter restarts on the '
+                                    'reading', ge=1, le=1000, seed='docs/estimators.md')
+    on_pid: bool = param(False, '', 'feed the PID the fused gap too (the same filter, run by '
+                         'the follow controller while the PID runs)', seed='notes §4')
 
 
 def kalman_step(ops, x, p, z, dz_enc, q, r):
@@ -52,6 +63,49 @@ def kalman_step(ops, x, p, z, dz_enc, q, r):
     pp = p + q
     k = pp / (pp + r)
     return xp + k * (z - xp), (1.0 - k) * pp, k
+
+
+def kalman_gated_step(ops, x, p, n_out, z, dz_enc, fresh, q, r, p0, gate, confirm):
+    """One step with the gate and coast rules; returns ``(x, p, k, n_out)``.
+
+    * No new sample (``fresh`` false: a dropout, or a tick between samples): predict only,
+      x = x + Δenc, P = P + Q (the estimate coasts on the encoder).
+    * ``gate`` > 0 and z − x⁻ > gate: an outlier; the estimate coasts and ``n_out``
+      counts it. ``confirm`` outliers in a row are a real change: restart on the reading
+      (x = z, P = p0). One-sided on purpose: only a reading *wider* than the prediction is
+      held back (trusting it would pull the nozzle down).
+    * ``gate`` > 0 and x⁻ − z > gate: a reading *closer* than predicted by more than the gate
+      restarts the filter on it at once: it can only send the nozzle up, and a slow
+      convergence through a small gain would keep the estimate wider than the data.
+    * Otherwise :func:`kalman_step`.
+
+    ``ops`` is ``SCALAR`` (floats) or ``ARRAY`` (numpy rows; ``fresh`` a bool or bool rows).
+    """
+    xp = x + dz_enc  # predict (notes §4 eq. 1)
+    pp = p + q
+    k = pp / (pp + r)
+    x_upd = xp + k * (z - xp)
+    p_upd = (1.0 - k) * pp
+    if ops is SCALAR:
+        if not fresh:
+            return xp, pp, 0.0, n_out
+        if gate > 0.0 and z - xp > gate:
+            if n_out + 1 >= confirm:
+                return z, p0, 1.0, 0
+            return xp, pp, 0.0, n_out + 1
+        if gate > 0.0 and xp - z > gate:
+            return z, p0, 1.0, 0
+        return x_upd, p_upd, k, 0
+    fresh = np.asarray(fresh, dtype=bool)
+    outlier = fresh & (gate > 0.0) & (z - xp > gate)
+    closer = fresh & (gate > 0.0) & (xp - z > gate)
+    n_new = ops.where(outlier, n_out + 1, ops.where(fresh, 0, n_out))
+    restart = (outlier & (n_new >= confirm)) | closer
+    coast = ~fresh | (outlier & ~restart)
+    return (ops.where(restart, z, ops.where(coast, xp, x_upd)),
+            ops.where(restart, p0, ops.where(coast, pp, p_upd)),
+            ops.where(restart, 1.0, ops.where(coast, 0.0, k)),
+            ops.where(restart, 0, n_new))
 
 
 def steady_state_gain(q: float, r: float) -> float:
@@ -76,14 +130,16 @@ class HeightKalman:
       encoder alone (x += Δenc, P += Q) and the filter is marked for re-initialisation;
       the next valid reading restarts it (x = reading, P = p0). More than
       ``max_coast_ticks`` invalid ticks in a row leave it uninitialised (returns nan).
-    * A jump: |z − x⁻| > ``gate_mm`` (e.g. a sheet edge or a ridge under the nozzle, a
-      change the random-walk model cannot explain) re-initialises on the reading.
+    * A jump: z − x⁻ > ``gate_mm``, a reading wider than predicted (e.g. a sheet edge under
+      the nozzle, a change the random-walk model cannot explain; one-sided, see
+      :func:`kalman_gated_step`), re-initialises on the reading after
+      ``gate_confirm_ticks`` of them in a row (default 1: at once).
 
     ``resets`` counts the re-initialisations for diagnostics.
     """
 
     def __init__(self, params: KalmanParams = KalmanParams(), gate_mm: float = 0.5,
-                 max_coast_ticks: int = 20):
+                 max_coast_ticks: int = 20, gate_confirm_ticks: int = 1):
         bad = params.problems()
         if not (gate_mm > 0.0):
             bad.append(f'kalman gate_mm = {gate_mm}: must be > 0 mm')
@@ -92,6 +148,8 @@ class HeightKalman:
         if bad:
             raise ValueError('; '.join(bad))
         self.params, self.gate_mm, self.max_coast_ticks = params, gate_mm, max_coast_ticks
+        self.gate_confirm_ticks = gate_confirm_ticks
+        self.outliers = 0  # in a row
         self.x = math.nan
         self.p = math.nan
         self.k = math.nan
@@ -104,6 +162,7 @@ class HeightKalman:
         self.x, self.p, self.k = float(z_mm), self.params.p0_mm2, 1.0
         self.initialised = True
         self.coast_ticks = 0
+        self.outliers = 0
 
     def update(self, z_mm: float, dz_enc_mm: float, valid: bool = True) -> float:
         """Fuse one reading with this tick's encoder increment; return the gap estimate."""
@@ -121,10 +180,12 @@ class HeightKalman:
             self.resets += 1
             self.reset(z_mm)
             return self.x
-        if abs(z_mm - (self.x + dz_enc_mm)) > self.gate_mm:
+        pa = self.params
+        off = z_mm - (self.x + dz_enc_mm)  # the rule of kalman_gated_step, for the count
+        if off < -self.gate_mm or (off > self.gate_mm
+                                   and self.outliers + 1 >= self.gate_confirm_ticks):
             self.resets += 1
-            self.reset(z_mm)
-            return self.x
-        self.x, self.p, self.k = kalman_step(SCALAR, self.x, self.p, z_mm, dz_enc_mm,
-                                             self.params.q_mm2, self.params.r_mm2)
+        self.x, self.p, self.k, self.outliers = kalman_gated_step(
+            SCALAR, self.x, self.p, self.outliers, z_mm, dz_enc_mm, True, pa.q_mm2,
+            pa.r_mm2, pa.p0_mm2, self.gate_mm, self.gate_confirm_ticks)
         return self.x

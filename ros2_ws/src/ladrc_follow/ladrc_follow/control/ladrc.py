@@ -41,19 +41,23 @@ from .eso import (
     compensate1,
     compensate2,
     eso1_euler_step,
+    eso1_fal_step,
     eso1_zoh_step,
     eso2_euler_step,
+    eso2_fal_step,
     eso2_zoh_step,
+    fal_alphas,
 )
-from .kalman import kalman_step
+from .kalman import kalman_gated_step
 from .law import apply_limits, form_weights, law1, law2
+from .nonlinear import LookupTable, fal
 from .ops import ARRAY, SCALAR
 from .params import ControllerParams, check, eso_gains, law_gains
 from .td import td_step_firmware
 
 # values that must be equal in every row of a batch (they select the code path)
 _STRUCTURAL = ('order', 'discretization', 'compensator', 'kalman', 'use_td', 'ext_limit',
-               'ext_rate_limit')
+               'ext_rate_limit', 'nonlinear', 'fal_table')
 
 
 def _constants(p: ControllerParams) -> dict:
@@ -63,7 +67,11 @@ def _constants(p: ControllerParams) -> dict:
     kp, kd = law_gains(p)
     use_td, w_rate, w_acc = form_weights(p.law.form, e.order)
     g = gains + (0.0,) * (3 - len(gains))
+    fa = fal_alphas(e.order, e.nonlinear, e.fal_alpha) + (1.0,) * (2 - e.order)
     return dict(
+        nonlinear=e.nonlinear, fal_table=e.fal_table, fal=(fa[0], fa[1], fa[2]),
+        fal_delta=e.fal_delta_mm, fal_size=float(e.fal_table_size),
+        fal_range=e.fal_table_range_mm,
         h=p.h_s,
         ta=(p.td_a.k1, p.td_a.k2, p.td_a.r_per_s, p.td_a.alpha),
         tb=(p.td_b.k1, p.td_b.k2, p.td_b.r_per_s, p.td_b.alpha),
@@ -75,6 +83,7 @@ def _constants(p: ControllerParams) -> dict:
         kp=kp, kd=kd, w_rate=w_rate, w_acc=w_acc,
         v_max=p.limits.v_max_mm_s, du_max=p.limits.a_max_mm_s2 * p.h_s,
         q=p.kalman.q_mm2, r=p.kalman.r_mm2, p0=p.kalman.p0_mm2,
+        kgate=p.kalman.gate_mm, kconfirm=float(p.kalman.gate_confirm_ticks),
         order=e.order, discretization=e.discretization, compensator=e.compensator,
         kalman=p.kalman.enabled, use_td=use_td,
         ext_limit=e.disturbance_limit > 0.0, ext_rate_limit=e.disturbance_rate_limit > 0.0,
@@ -128,12 +137,34 @@ class LADRC:
         self._law = (c['kp'], c['kd'], c['w_rate'], c['w_acc'])
         self._limits = (c['v_max'], c['du_max'])
         self._kalman_qr = (c['q'], c['r'])
+        self._kalman_gate = (c['p0'], c['kgate'], c['kconfirm'])
         self._td_a = c['ta']
         self._td_b = c['tb']
         self._ext = (c['ext_limit_v'] if c['ext_limit'] else None,
                      c['ext_rate_limit_v'] if c['ext_rate_limit'] else None)
+        self._g = self._fal_corrections(c)
         self.step = self.step1 if self.order == 1 else self.step2
         self.reset(0.0, 0.0, 0.0)
+
+    def _fal_corrections(self, c: dict):
+        """Return g(ε) -> (g_1..g_{n+1}) of the fal-ESO, or None for the linear ESO.
+
+        Direct: fal(ε, α_i, δ) (paper eq. 6); table: the firmware's lookup, one odd table per
+        exponent over ±``fal_table_range_mm`` (:class:`.nonlinear.LookupTable`).
+        """
+        if c['nonlinear'] == 'off':
+            return None
+        n1 = self.order + 1
+        alphas, delta, ops = c['fal'][:n1], c['fal_delta'], self.ops
+        if not c['fal_table']:
+            return lambda e: tuple(fal(ops, e, a, delta) for a in alphas)
+        if self.n is not None:
+            raise ValueError('LADRC.batch: eso.fal_table (lookup tables) runs on the scalar '
+                             'path only; sweep the direct fal instead')
+        tables = [LookupTable(lambda x, a=a: fal(ARRAY, x, a, delta), -c['fal_range'],
+                              c['fal_range'], int(c['fal_size']), odd=True,
+                              extrapolate='linear') for a in alphas]
+        return lambda e: tuple(t(e) for t in tables)
 
     @classmethod
     def batch(cls, params: Sequence[ControllerParams]) -> LADRC:
@@ -191,6 +222,7 @@ class LADRC:
         self.fused_gap_mm = gap
         self.kalman_p = self._vec(self._p0)
         self.kalman_k = zero
+        self._kalman_n = zero  # outliers in a row (kalman.gate_mm)
         self._enc_prev = None if encoder_mm is None else self._vec(encoder_mm)
         self.u = u_prev
         self.u0 = self.p_term = self.d_term = self.ff_term = zero
@@ -199,17 +231,19 @@ class LADRC:
         self.saturated = self.rate_limited = (zero != zero)
 
     # ------------------------------------------------------------------ tick
-    def step(self, gap_mm, encoder_mm, target_mm):
+    def step(self, gap_mm, encoder_mm, target_mm, fresh=True):
         """One 0.5 ms tick; return the velocity command in mm/s (+ = up, widens the gap).
 
         ``encoder_mm`` is the axis position (+ up); only its increment is used, by the
-        Kalman filter (ignored when the filter is off; may be None then). The instance
-        binds this name to :meth:`step1` or :meth:`step2` at construction.
+        Kalman filter (ignored when the filter is off; may be None then). ``fresh`` false:
+        ``gap_mm`` is not a new sample (the follow controller's encoder prediction), so the
+        Kalman filter only predicts. The instance binds this name to :meth:`step1` or
+        :meth:`step2` at construction.
         """
-        return self.step1(gap_mm, encoder_mm, target_mm) if self.order == 1 else \
-            self.step2(gap_mm, encoder_mm, target_mm)
+        return self.step1(gap_mm, encoder_mm, target_mm, fresh) if self.order == 1 else \
+            self.step2(gap_mm, encoder_mm, target_mm, fresh)
 
-    def _measure(self, gap_mm, encoder_mm):
+    def _measure(self, gap_mm, encoder_mm, fresh=True):
         """Gap the observer sees: the reading, or its Kalman fusion with Δenc (notes §4)."""
         if not self.kalman_enabled:
             self.fused_gap_mm = gap_mm
@@ -218,8 +252,10 @@ class LADRC:
         dz = 0.0 if (enc_prev is None or encoder_mm is None) else encoder_mm - enc_prev
         self._enc_prev = encoder_mm
         q, r = self._kalman_qr
-        y, self.kalman_p, self.kalman_k = kalman_step(self.ops, self.fused_gap_mm,
-                                                      self.kalman_p, gap_mm, dz, q, r)
+        p0, gate, confirm = self._kalman_gate
+        y, self.kalman_p, self.kalman_k, self._kalman_n = kalman_gated_step(
+            self.ops, self.fused_gap_mm, self.kalman_p, self._kalman_n, gap_mm, dz, fresh,
+            q, r, p0, gate, confirm)
         self.fused_gap_mm = y
         return y
 
@@ -242,16 +278,20 @@ class LADRC:
         self.u = u
         return u
 
-    def step1(self, gap_mm, encoder_mm, target_mm):
+    def step1(self, gap_mm, encoder_mm, target_mm, fresh=True):
         """Order-1 tick (seed ``CONTROLLER_ORDER 1``): Kalman, ESO, TD, law, limits."""
         ops, h, b0 = self.ops, self._h, self._b0
         g1, g2, _ = self._gains
         u_prev = self.u
-        y = self._measure(gap_mm, encoder_mm)
+        y = self._measure(gap_mm, encoder_mm, fresh)
         # ESO fed the APPLIED previous output (UpdateLADRC: EsoUpdate(nCtrl, height))
         z1o, z2o = self.z1, self.z2
-        eso_step = eso1_euler_step if self._euler else eso1_zoh_step
-        z1, z2 = eso_step(ops, z1o, z2o, y, u_prev, g1, g2, b0, h, *self._ext)
+        if self._g is not None:  # fal-ESO (eso.nonlinear; Euler only)
+            z1, z2 = eso1_fal_step(ops, z1o, z2o, y, u_prev, g1, g2, b0, h, self._g,
+                                   *self._ext)
+        else:
+            eso_step = eso1_euler_step if self._euler else eso1_zoh_step
+            z1, z2 = eso_step(ops, z1o, z2o, y, u_prev, g1, g2, b0, h, *self._ext)
         self.z1, self.z2 = z1, z2
         if self.compensator:
             # paper eq. 22: measurement and estimate of the same instant
@@ -270,15 +310,20 @@ class LADRC:
         self.disturbance_term = -(z2 / b0)
         return self._limit(u, u_prev)
 
-    def step2(self, gap_mm, encoder_mm, target_mm):
+    def step2(self, gap_mm, encoder_mm, target_mm, fresh=True):
         """Order-2 tick: as :meth:`step1` with z = (gap, gap rate, disturbance), r̈ = Δṙ/h."""
         ops, h, b0 = self.ops, self._h, self._b0
         g1, g2, g3 = self._gains
         u_prev = self.u
-        y = self._measure(gap_mm, encoder_mm)
+        y = self._measure(gap_mm, encoder_mm, fresh)
         z1o, z2o, z3o = self.z1, self.z2, self.z3
-        eso_step = eso2_euler_step if self._euler else eso2_zoh_step
-        z1, z2, z3 = eso_step(ops, z1o, z2o, z3o, y, u_prev, g1, g2, g3, b0, h, *self._ext)
+        if self._g is not None:  # fal-ESO (eso.nonlinear; Euler only)
+            z1, z2, z3 = eso2_fal_step(ops, z1o, z2o, z3o, y, u_prev, g1, g2, g3, b0, h,
+                                       self._g, *self._ext)
+        else:
+            eso_step = eso2_euler_step if self._euler else eso2_zoh_step
+            z1, z2, z3 = eso_step(ops, z1o, z2o, z3o, y, u_prev, g1, g2, g3, b0, h,
+                                  *self._ext)
         self.z1, self.z2, self.z3 = z1, z2, z3
         if self.compensator:
             c1, c2 = self._comp

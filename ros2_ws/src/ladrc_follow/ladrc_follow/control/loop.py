@@ -30,7 +30,15 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .eso import eso1_euler_step, eso1_zoh_step, eso2_euler_step, eso2_zoh_step
+from .eso import (
+    eso1_euler_step,
+    eso1_fal_step,
+    eso1_zoh_step,
+    eso2_euler_step,
+    eso2_fal_step,
+    eso2_zoh_step,
+    fal_alphas,
+)
 from .ladrc import LADRC, _constants
 from .ops import SCALAR
 from .params import ControllerParams
@@ -419,7 +427,12 @@ def observer_ss(params: ControllerParams) -> StateSpace:
     """
     c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
     n, h = c.order, params.h_s
-    if n == 1:
+    if c._g is not None:  # the fal-ESO: probed inside its linear zone (eso.fal_delta_mm)
+        step_fn = eso1_fal_step if n == 1 else eso2_fal_step
+
+        def eso(ops, *a):
+            return step_fn(ops, *a[:-2], c._g, *a[-2:])
+    elif n == 1:
         eso = eso1_euler_step if c._euler else eso1_zoh_step
     else:
         eso = eso2_euler_step if c._euler else eso2_zoh_step
@@ -457,6 +470,9 @@ def analyse_observer(params: ControllerParams, f_hz: Sequence[float] | None = No
     e = params.eso
     c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
     gains = c._gains[:e.order + 1]
+    if e.nonlinear != 'off':  # the fal-ESO's linear zone: gains β_i·δ^(α_i − 1)
+        gains = tuple(g * e.fal_delta_mm ** (a - 1.0) for g, a in
+                      zip(gains, fal_alphas(e.order, e.nonlinear, e.fal_alpha), strict=True))
     if e.discretization == 'euler':
         err = LinearESO(e.order, e.b0, h, betas=gains).discrete_error_matrix()
     else:  # the ZOH current estimator's error matrix (I − L C) Φ with the tick's gains
@@ -466,3 +482,23 @@ def analyse_observer(params: ControllerParams, f_hz: Sequence[float] | None = No
     poles = sorted(float(abs(np.log(v)) / (2 * math.pi * h)) if v != 0 else math.inf
                    for v in lam)
     return ObserverAnalysis(f, resp, poles, float(np.max(np.abs(lam))), _bandwidth(f, resp))
+
+
+def td_ss(params: ControllerParams) -> StateSpace:
+    """Linearize the compound TD of the tick (``LADRC._track``): target -> r (TDB's x1).
+
+    Linear by construction (notes §2.1); probing gives its discrete form exactly as it runs.
+    """
+    c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+
+    def get() -> np.ndarray:
+        return np.array([float(v) for v in c._td])
+
+    def put(x: np.ndarray) -> None:
+        c._td = tuple(float(v) for v in x)
+
+    def step(w: np.ndarray) -> float:
+        return c._track(float(w[0]))[0]
+
+    a, b, cc, d = _linearize(get, put, step, 1, 2)  # state 2 = b1 = r after the tick
+    return StateSpace(a, b, cc, d, params.h_s)

@@ -35,8 +35,8 @@ class ScalarOps:
 
     @staticmethod
     def sign(x: float) -> float:
-        """Return -1.0, 0.0 or 1.0 (0 at 0, as numpy.sign)."""
-        return (x > 0.0) - (x < 0.0) + 0.0
+        """Return -1.0, 0.0 or 1.0 (0 at 0, as numpy.sign); numpy scalars too."""
+        return float(x > 0.0) - float(x < 0.0)
 
     @staticmethod
     def power(x: float, y: float) -> float:
@@ -62,12 +62,21 @@ class ArrayOps:
     minimum = staticmethod(np.minimum)
     maximum = staticmethod(np.maximum)
     sign = staticmethod(np.sign)
-    power = staticmethod(np.power)
+
+    @staticmethod
+    def power(x: np.ndarray, y) -> np.ndarray:
+        """``x ** y`` element by element with libm's pow, as the scalar path.
+
+        numpy's SIMD power differs from libm's in the last bit for some inputs (seen on
+        AVX-512), which would break batch == scalar; fal (the only user) is off the hot path.
+        """
+        return np.asarray(_POW(x, y), dtype=float)
     exp = staticmethod(np.exp)
     arctan = staticmethod(np.arctan)
     arcsinh = staticmethod(np.arcsinh)
     sinh = staticmethod(np.sinh)
 
 
+_POW = np.frompyfunc(math.pow, 2, 1)
 SCALAR = ScalarOps()
 ARRAY = ArrayOps()

@@ -33,7 +33,7 @@ import yaml
 
 from .cap_table import CapTableParams
 from .edge import EdgeParams
-from .eso import bandwidth_gains, euler_is_stable, zoh_gains
+from .eso import bandwidth_gains, euler_is_stable, fal_alphas, zoh_gains
 from .follow_params import FollowParams
 from .interp import InterpParams
 from .kalman import KalmanParams
@@ -87,6 +87,21 @@ class ESOParams:
     disturbance_rate_limit: float = param(0.0, 'per tick', 'clamp of the disturbance '
                                           "estimate's change per tick; 0 = off",
                                           ge=0.0, le=1e7, seed='notes §3.4')
+    nonlinear: str = param('off', '', "fal on the observer's corrections: 'off' (LESO), "
+                           "'disturbance' (only the extended state's, notes §5.2 fix 3) or "
+                           "'all' (the NESO of paper eq. 4); explicit Euler only",
+                           choices=('off', 'disturbance', 'all'), seed='notes §1.2, §5.2')
+    fal_alpha: float = param(0.5, '1', "fal exponent α: 'disturbance' uses α on the extended "
+                             "state; 'all' uses α^i on state i (paper eq. 38: 0.5, 0.25, …)",
+                             gt=0.0, le=1.0, seed='paper eq. 6, 38')
+    fal_delta_mm: float = param(0.05, 'mm', 'half-width δ of the linear zone of fal (inside, '
+                                'gain β·δ^(α−1))', gt=0.0, le=10.0, seed='paper eq. 6, 38')
+    fal_table: bool = param(False, '', 'evaluate fal by table lookup, as the firmware would '
+                            '(notes §1.2), instead of directly', seed='notes §1.2, §6')
+    fal_table_size: int = param(257, 'entries', 'lookup table entries over 0..range (odd '
+                                'symmetry)', ge=3, le=100000, seed='notes §6')
+    fal_table_range_mm: float = param(2.0, 'mm', 'table range ±; beyond it the last segment '
+                                      'is extended', gt=0.0, le=100.0, seed='notes §6')
 
 
 @dataclass(frozen=True)
@@ -381,7 +396,8 @@ def _yaml_value(value: Any) -> str:
     if isinstance(value, tuple):
         return '[' + ', '.join(_yaml_value(float(v)) for v in value) + ']'
     if isinstance(value, str):
-        return value or "''"  # an empty string, not YAML's null
+        # quoted when YAML would read it back as something else ('' is null, off is false)
+        return value if yaml.safe_load(value) == value else "'" + value.replace("'", "''") + "'"
     text = repr(value)
     if isinstance(value, float) and 'e' in text and '.' not in text:
         text = text.replace('e', '.0e')  # YAML 1.1 (PyYAML) reads 1e-06 as a string
@@ -445,6 +461,23 @@ def _eso_problems(p: ControllerParams) -> list[str]:
                 "set eso.gains: 'bandwidth'"]
     if e.gains == 'explicit' and len(e.betas) != e.order + 1:
         return [f'eso.betas needs {e.order + 1} values for order {e.order}, got {len(e.betas)}']
+    if e.nonlinear != 'off':
+        if e.compensator:
+            return [f'eso.compensator (paper eq. 22, linear D_i = β_(i−1)·e1) with eso.nonlinear '
+                    f'{e.nonlinear!r}: the compensator of a fal-ESO is not implemented']
+        if e.discretization != 'euler':
+            return [f"eso.nonlinear {e.nonlinear!r} runs on the explicit-Euler observer (the "
+                    "firmware's); set eso.discretization: 'euler'"]
+        if e.fal_table and e.fal_table_range_mm <= e.fal_delta_mm:
+            return [f'eso.fal_table_range_mm ({e.fal_table_range_mm:g}) must exceed '
+                    f'eso.fal_delta_mm ({e.fal_delta_mm:g})']
+        # inside |e| <= δ the fal-ESO is a LESO with gains β_i·δ^(α_i − 1): its stiffest zone
+        lin = [b * e.fal_delta_mm ** (a - 1.0) for b, a in
+               zip(eso_gains(p), fal_alphas(e.order, e.nonlinear, e.fal_alpha), strict=True)]
+        if not euler_is_stable(e.order, lin, p.h_s):
+            return [f'eso: the fal observer is unstable in its linear zone: gains '
+                    f'{[float(f"{g:.4g}") for g in lin]} (β·δ^(α−1), δ = {e.fal_delta_mm:g} mm)'
+                    f' at h = {p.h_s} s; raise fal_delta_mm or lower the betas']
     if e.discretization == 'euler' and not euler_is_stable(e.order, eso_gains(p), p.h_s):
         bound = _euler_bound(e.order, p.h_s)
         if e.gains == 'bandwidth':

@@ -156,6 +156,7 @@ def markdown_table(obj: Any) -> str:
         tp = e.type
         tname = 'list of float' if typing.get_origin(tp) is tuple else tp.__name__
         value = list(e.value) if isinstance(e.value, tuple) else e.value
+        value = "''" if value == '' else value  # an empty string shows as ''
         seed = f' ({e.spec.seed})' if e.spec.seed else ''
         cells = (f'`{e.name}`', tname, f'`{value}`', e.spec.unit, e.spec.range_text(),
                  'yes' if e.spec.runtime else 'start-up', e.spec.description + seed)

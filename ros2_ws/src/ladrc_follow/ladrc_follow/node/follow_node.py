@@ -19,6 +19,7 @@ from __future__ import annotations
 from array import array
 from dataclasses import dataclass
 import gc
+import json
 import math
 import signal
 import sys
@@ -41,6 +42,7 @@ from ladrc_msgs.srv import (
     SetTarget,
     StartFollow,
     StopFollow,
+    TargetWave,
 )
 import numpy as np
 from rcl_interfaces.msg import (
@@ -228,6 +230,7 @@ class FollowNode(Node):
                             self._srv_compensation)
         self.create_service(GradientFollow, 'follow/gradient_follow', self._srv_gradient)
         self.create_service(ResetFault, 'follow/reset_fault', self._srv_reset)
+        self.create_service(TargetWave, 'follow/target_wave', self._srv_target_wave)
 
         # The tick publishes pre-serialized CDR (ladrc_follow.node.cdr): filling rclpy messages
         # field by field cost more than the whole control step. One value list per message,
@@ -502,6 +505,13 @@ class FollowNode(Node):
 
     def _srv_reset(self, request, response):
         return self._command(response, FollowEvent.RESET_FAULT, 'reset_fault', {})
+
+    def _srv_target_wave(self, request, response):
+        wave = {'kind': request.kind, 'freq_hz': request.freq_hz,
+                'freq_end_hz': request.freq_end_hz, 'duration_s': request.duration_s}
+        return self._command(response, FollowEvent.TARGET_WAVE, 'target_wave',
+                             {'value_mm': request.amp_mm, 'text': json.dumps(wave)},
+                             amp_mm=request.amp_mm, **wave)
 
     # ---- diagnostics ------------------------------------------------------------------
     def loop_statistics(self) -> dict[str, float]:

@@ -19,7 +19,8 @@ Not in a batch (:class:`BatchUnsupported` says which), because each is the follo
 machine's business, not the law's: a start away from the sheet (approach), coverage below the
 sensor's ``min_coverage`` (miss-panel), dropouts, freezes, encoder glitches, drive events, the
 machining flag (it hands the axis to the PID), the identified plant, and commands other than
-``start_follow`` / ``set_target`` (which takes effect at its tick in every row).
+``start_follow`` / ``set_target`` (which takes effect at its tick in every row), e.g. the
+controller's ``target_wave``.
 """
 
 from __future__ import annotations

@@ -52,7 +52,13 @@ COMMANDS: dict[str, dict[str, tuple]] = {
     'height_compensation': {'offset_mm': (float, REQUIRED, -10.0, 10.0)},
     'gradient_follow': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0),
                         'delay_s': (float, 0.0, 0.0, None)},
+    # a test signal on the follow target once followed (the seed's SIN_GEN)
+    'target_wave': {'kind': (str, 'sine', None, None), 'amp_mm': (float, REQUIRED, 0.0, 2.0),
+                    'freq_hz': (float, REQUIRED, 0.0, 100.0),
+                    'freq_end_hz': (float, 0.0, 0.0, 100.0),
+                    'duration_s': (float, 0.0, 0.0, 600.0)},
 }
+WAVE_KINDS = ('sine', 'chirp', 'square')
 # Events acting on the simulated world (handled by the runner).
 SIM_EVENTS: dict[str, dict[str, tuple]] = {
     'coverage': {'value': (float, REQUIRED, 0.0, 1.0), 'ramp_s': (float, 0.0, 0.0, None)},
@@ -244,6 +250,8 @@ def _event(data: Any, key: str, duration_s: float) -> Event:
             hi_s = 'inf' if hi is None else hi
             raise _Fail(sub, f'{v} out of range, must be within [{lo_s}, {hi_s}]')
         args[k] = v
+    if name == 'target_wave' and args['kind'] not in WAVE_KINDS:
+        raise _Fail(_join(key, 'kind'), f'{args["kind"]!r} is not one of {", ".join(WAVE_KINDS)}')
     if name in ('start_follow', 'set_target', 'gradient_follow') and args['target_gap_mm'] <= 0:
         raise _Fail(_join(key, 'target_gap_mm'), 'must be > 0 (a gap of 0 is contact)')
     return Event(t_s=t_s, name=name, args=args)

@@ -22,7 +22,9 @@ Two plant models (notes §1):
   it agrees with the mechanistic model above its poles (~0.04 Hz). Its DC behaviour (finite
   gain, a right-half-plane zero at 0.014 rad/s) differs from the integrating model, so it is
   only meaningful over seconds, as the identification was. No acceleration limit applies to
-  it; the command is clipped to ``+-v_max``.
+  it; the command is clipped to ``+-v_max``. The four coefficients are parameters
+  (``identified_n1, n0, d1, d0``, defaults the notes' values) so that a run can sit at an end
+  of the notes' intervals; units and intervals: docs/identified-plant.md.
 
 A drive that is disabled or faulted ignores the command and decelerates to a stop at
 ``a_max`` (the identified model simply freezes). An optional dead time delays the command by
@@ -110,6 +112,12 @@ class AxisParams:
     a_max_mm_s2: float = spec(5000.0, gt=0.0)
     dead_time_ticks: int = spec(0, ge=0, le=1000, why='whole ticks of command delay')
     identified_gain: float = spec(1.0 / 16.75, gt=0.0, why='command scale into the §1.2 model')
+    # notes §1.2 coefficients, (n1 s + n0) / (s^2 + d1 s + d0); the notes' +/- (one standard
+    # deviation) lets a run sit at an interval end (docs/identified-plant.md)
+    identified_n1: float = spec(IDENTIFIED_NUM[0], gt=0.0, why='§1.2 numerator s term, +/-0.2556')
+    identified_n0: float = spec(IDENTIFIED_NUM[1], why='§1.2 numerator constant, +/-1.816')
+    identified_d1: float = spec(IDENTIFIED_DEN[1], why='§1.2 denominator s term, +/-0.1804')
+    identified_d0: float = spec(IDENTIFIED_DEN[2], why='§1.2 denominator constant, +/-0.3627')
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -140,7 +148,9 @@ class Axis:
         self._k = 0
         if self._identified:
             # notes §1.2, ZOH state space of the identified model.
-            a_c, b_c, c_c, d_c = signal.tf2ss(IDENTIFIED_NUM, IDENTIFIED_DEN)
+            a_c, b_c, c_c, d_c = signal.tf2ss(
+                (params.identified_n1, params.identified_n0),
+                (1.0, params.identified_d1, params.identified_d0))
             ad, bd, cd, dd, _ = signal.cont2discrete((a_c, b_c, c_c, d_c), h, method='zoh')
             self._ad = [[float(v) for v in row] for row in ad]
             self._bd = [float(v) for v in np.ravel(bd)]

@@ -31,6 +31,7 @@ from ladrc_msgs.srv import (
     SetTarget,
     StartFollow,
     StopFollow,
+    TargetWave,
 )
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -41,6 +42,7 @@ from std_msgs.msg import String
 
 from ..headless.runner import run
 from ..headless.scenario import ScenarioError, list_scenarios, load_scenario
+from ..models.sensor import EPS0_PF_PER_MM
 from .realtime import apply_realtime
 
 # The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
@@ -63,6 +65,7 @@ SERVICES = {
     'machining': (SetMachining, 'follow/set_machining'),
     'height_compensation': (HeightCompensation, 'follow/height_compensation'),
     'gradient_follow': (GradientFollow, 'follow/gradient_follow'),
+    'target_wave': (TargetWave, 'follow/target_wave'),
 }
 # scenario argument name -> service request field
 REQUEST_FIELDS = {'on': 'machining'}
@@ -206,6 +209,9 @@ class SimNode(Node):
         self.declare_parameter('wait_for_recorder_s', 0.0)
         self.declare_parameter('start_delay_s', 0.0)
         self.declare_parameter('frame_id', 'z_axis')
+        # raw_only: publish the oscillator frequency only (gap_mm NaN), as a driver that
+        # leaves the raw -> gap table to the controller (docs/calibration.md)
+        self.declare_parameter('raw_only', False)
         # real-time settings of the loop, as the follow node's (node/realtime.py)
         self.declare_parameter('thread_priority', 50)
         self.declare_parameter('cpu', -1)
@@ -217,6 +223,13 @@ class SimNode(Node):
         if not self.watchdog_timeout_s > 0:
             raise ValueError('watchdog_timeout_s must be > 0')
         self.frame_id = self.get_parameter('frame_id').value
+        self.raw_only = bool(self.get_parameter('raw_only').value)
+        # the sensor model's LC oscillator (models/sensor.py oscillator_hz), scalar:
+        # f = f0 / sqrt(1 + k / r), k = eps0 A / C_p
+        sp = self.scenario.sensor
+        self._osc_f0 = float(sp.osc_f0_hz)
+        self._osc_k = (EPS0_PF_PER_MM * math.pi * 0.25 * sp.nozzle_diameter_mm ** 2
+                       / sp.parasitic_pf)
         self.pub_gap = self.create_publisher(CapacitiveHeight, 'axis/capacitive_height',
                                              HIGH_RATE)
         self.pub_fb = self.create_publisher(AxisFeedback, 'axis/feedback', HIGH_RATE)
@@ -277,12 +290,13 @@ class SimNode(Node):
         gap.header.stamp.nanosec = nsec
         gap.seq = seq
         reading = float(tick.gap_mm)
-        gap.gap_mm = reading
+        gap.gap_mm = math.nan if self.raw_only else reading
         gap.valid = bool(tick.gap_valid)
         gap.status = int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1))
-        # Oscillator model of docs/simulator.md: f = f0 / sqrt(1 + c/gap) (falls as C rises).
-        gap.raw_hz = (2.0e6 / math.sqrt(1.0 + 2.0 / max(reading, 0.01))
-                      if math.isfinite(reading) else 0.0)
+        # the raw value behind the reading: the sensor model's oscillator (docs/simulator.md),
+        # falls as the capacitance rises (as the nozzle approaches)
+        gap.raw_hz = (self._osc_f0 / math.sqrt(1.0 + self._osc_k / max(reading, 1e-3))
+                      if math.isfinite(reading) else math.nan)
         self.pub_gap.publish(gap)
         fb = self._fb
         fb.header.stamp.sec = sec

@@ -28,6 +28,7 @@ per topic.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, is_dataclass
+import json
 import os
 from pathlib import Path
 import shutil
@@ -535,9 +536,11 @@ def stamp_parts(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 # ---- headless runs ----------------------------------------------------------------------
 EVENT_KIND = {'start_follow': 1, 'stop_follow': 2, 'set_target': 3, 'machining': 4,
-              'height_compensation': 5, 'gradient_follow': 6, 'reset_fault': 7}
+              'height_compensation': 5, 'gradient_follow': 6, 'reset_fault': 7,
+              'target_wave': 9}
 _EVENT_VALUE = {'start_follow': 'target_gap_mm', 'set_target': 'target_gap_mm',
-                'height_compensation': 'offset_mm', 'gradient_follow': 'target_gap_mm'}
+                'height_compensation': 'offset_mm', 'gradient_follow': 'target_gap_mm',
+                'target_wave': 'amp_mm'}
 STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION = 0, 1, 2
 STATE_IDLE, STATE_FAULT = 0, 5
 
@@ -576,8 +579,10 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     from the scenario's commands at the runner's ticks (plus a PARAMETERS event at tick 0),
     ``run/parameters`` and ``run/scenario`` texts. Stamps and bag times are sim time. Status
     fields come from ``result.internals`` when the controller reports them under FollowStatus
-    names, else from the run's series (floats the run does not know are NaN). Written into a
-    temporary folder and renamed, so ``path`` appears only complete.
+    names, else from the run's series (floats the run does not know are NaN). The command's
+    ``enable`` is ``internals['command_enable']`` when the controller reports it (the
+    excitation player), else derived from the follow state. Written into a temporary folder
+    and renamed, so ``path`` appears only complete.
     """
     path = Path(path)
     if path.exists():
@@ -616,7 +621,9 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
         'velocity_mm_s': np.nan_to_num(enc_vel), 'drive_enabled': enabled,
         'drive_fault': fault})
     state = internals.get('state')
-    if state is not None:
+    if 'command_enable' in internals:  # a controller that says it (the excitation player)
+        enable = np.nan_to_num(internals['command_enable']).astype(bool)
+    elif state is not None:
         state = np.nan_to_num(state).astype(np.uint8)
         enable = (state != STATE_IDLE) & (state != STATE_FAULT)
     else:
@@ -672,6 +679,10 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
         tick = min(n - 1, int(round(e.t_s / h_s)))
         a = e.args
         value = float(a[_EVENT_VALUE[e.name]]) if e.name in _EVENT_VALUE else float('nan')
+        if e.name == 'target_wave':  # follow_node.py: the wave's other arguments as JSON
+            wave = {k: a[k] for k in ('kind', 'freq_hz', 'freq_end_hz', 'duration_s')}
+            events.append(event(tick, EVENT_KIND[e.name], value, text=json.dumps(wave)))
+            continue
         events.append(event(tick, EVENT_KIND[e.name], value, float(a.get('delay_s', 0.0)),
                             bool(a.get('on', False))))
     events.sort(key=lambda x: x[0])

@@ -21,6 +21,7 @@ Pure Python + numpy (no rclpy): reads bags with :mod:`ladrc_tools.bags.bag`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+import json
 import math
 from pathlib import Path
 import time
@@ -51,7 +52,7 @@ __all__ = [
 # ladrc_msgs/FollowEvent kinds -> follow command names (follow_node.py's services).
 KIND_NAMES = {1: 'start_follow', 2: 'stop_follow', 3: 'set_target', 4: 'machining',
               5: 'height_compensation', 6: 'gradient_follow', 7: 'reset_fault',
-              8: 'parameters'}
+              8: 'parameters', 9: 'target_wave'}
 PARAMETERS = 8
 STATE_NAMES = ('IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT')
 LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
@@ -428,6 +429,8 @@ def event_command(ev: RecordedEvent) -> tuple[str, dict[str, Any]]:
                                    'accel_mm_s2': ev.accel_mm_s2}
     if k == 7:
         return 'reset_fault', {}
+    if k == 9:
+        return 'target_wave', {'amp_mm': ev.value_mm, **json.loads(ev.text)}
     raise ValueError(f'follow/events kind {k} is not a follow command')
 
 

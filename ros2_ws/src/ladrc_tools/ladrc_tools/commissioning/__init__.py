@@ -1,0 +1,1 @@
+"""Commissioning a real axis (no rclpy): excitation, identification, calibration, conformance."""

@@ -1,0 +1,156 @@
+"""A deliberately broken drive for the conformance kit's tests: the sim node with defects.
+
+A real rclpy process: the sim node's own ``main`` (``ladrc_sim.node.sim_node``), its drive
+bridge and its models, with the classes it instantiates swapped for subclasses that add the
+defects chosen on the command line::
+
+    python tests/commissioning/broken_driver.py --defect wrong_sign [--defect ...] [--ros-args ...]
+
+Defects (each breaks what a real driver gets wrong, and nothing else):
+
+``wrong_sign``     the drive moves down on a positive (up) command; the encoder is right
+``gap_um``         ``gap_mm`` carries micrometres (an amplifier set to µm output)
+``future_stamps``  header stamps 50 ms ahead of the clock
+``no_watchdog``    commands stop: the drive keeps the last one, no fault, no stop
+``seq_gaps``       ``seq`` skips one number every 200 samples (both topics)
+``reliable_only``  RELIABLE publishers and a RELIABLE command subscription
+``ignore_enable``  ``enable=false`` is ignored (the velocity is executed)
+``speed_x3``       the drive moves three times the commanded speed (b0 = 3; trips the kit's
+                   speed bound in the excitation)
+``one_fault``      one transient drive fault (quick stop, cleared 0.1 s later) 0.6 s after the
+                   first command: not a defect of the contract, but what a stall of the host
+                   looks like to the kit (it repeats the motion tests)
+
+Without ``-p scenario:=...`` it plays the conformance scenario of ``ladrc conform --sim`` (flat
+resting sheet, no follow commands, 5 mm above the sheet).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+import tempfile
+
+ROOT = Path(__file__).resolve().parents[2]
+for _pkg in ('ladrc_sim', 'ladrc_tools', 'ladrc_follow'):
+    _src = str(ROOT / 'ros2_ws' / 'src' / _pkg)
+    if _src not in sys.path:
+        sys.path.insert(0, _src)
+
+from ladrc_sim.node import sim_node as sn  # noqa: E402
+from ladrc_tools.commissioning.conformance import sim_scenario_yaml  # noqa: E402
+from rclpy.qos import (  # noqa: E402
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+
+DEFECTS = ('wrong_sign', 'gap_um', 'future_stamps', 'no_watchdog', 'seq_gaps', 'reliable_only',
+           'ignore_enable', 'speed_x3', 'one_fault')
+FAULT_AFTER_TICKS = 1200  # 0.6 s after the first command: in the kit's 'up' test
+FUTURE_NS = 50_000_000
+SEQ_SKIP_EVERY = 200
+
+
+class _Tampered:
+    """A publisher whose messages are altered just before they are published."""
+
+    def __init__(self, publisher, alter) -> None:
+        self._publisher = publisher
+        self._alter = alter
+
+    def publish(self, msg) -> None:
+        self._alter(msg)
+        self._publisher.publish(msg)
+
+    def __getattr__(self, name):
+        return getattr(self._publisher, name)
+
+
+def make_classes(defects: set[str]):
+    """Return the (SimNode, DriveBridge) subclasses with ``defects``."""
+    base_node, base_bridge = sn.SimNode, sn.DriveBridge
+
+    class BrokenBridge(base_bridge):
+        def __init__(self, node, executor, realtime: bool = True) -> None:
+            super().__init__(node, executor, realtime)
+            if 'no_watchdog' in defects:
+                self.watchdog_ticks = 2**62  # never trips: the last command stays in force
+            self._ticks_commanded = 0
+
+        def step(self, tick) -> float:
+            if 'one_fault' in defects and self.cmd_count:
+                self._ticks_commanded += 1
+                if self._ticks_commanded == FAULT_AFTER_TICKS:
+                    # latched like a watchdog fault: cleared after watchdog_recover_s of commands
+                    self.fault_reason = 'injected transient fault (test)'
+            u = super().step(tick)
+            if 'speed_x3' in defects:
+                u = 3.0 * u
+            return -u if 'wrong_sign' in defects else u
+
+        def on_command(self, msg) -> None:
+            super().on_command(msg)
+            if 'ignore_enable' in defects:
+                self.cmd_enable = True
+
+    class BrokenNode(base_node):
+        def __init__(self) -> None:
+            super().__init__()
+            alters = []
+            if 'future_stamps' in defects:
+                def future(msg) -> None:
+                    ns = (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                          + FUTURE_NS)
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+                alters.append(future)
+            if 'seq_gaps' in defects:
+                def skip(msg) -> None:
+                    msg.seq = msg.seq + msg.seq // SEQ_SKIP_EVERY
+                alters.append(skip)
+
+            def each(msg) -> None:
+                for alter in alters:
+                    alter(msg)
+
+            def gap_alter(msg) -> None:
+                each(msg)
+                if 'gap_um' in defects:
+                    msg.gap_mm = msg.gap_mm * 1000.0
+
+            self.pub_gap = _Tampered(self.pub_gap, gap_alter)
+            self.pub_fb = _Tampered(self.pub_fb, each)
+
+    return BrokenNode, BrokenBridge
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the sim node with the defects of the command line."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args = argv[argv.index('--ros-args'):] if '--ros-args' in argv else []
+    ours = argv[:len(argv) - len(ros_args)]
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--defect', action='append', choices=DEFECTS, default=[])
+    ap.add_argument('--start-gap-mm', type=float, default=5.0)
+    a = ap.parse_args(ours)
+    defects = set(a.defect)
+    if 'reliable_only' in defects:
+        sn.HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                                  reliability=ReliabilityPolicy.RELIABLE,
+                                  durability=DurabilityPolicy.VOLATILE)
+        sn.CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                                      reliability=ReliabilityPolicy.RELIABLE,
+                                      durability=DurabilityPolicy.VOLATILE)
+    sn.SimNode, sn.DriveBridge = make_classes(defects)
+    with tempfile.TemporaryDirectory(prefix='broken-driver-') as tmp:
+        if not any(x.startswith('scenario:=') for x in ros_args):
+            scenario = Path(tmp) / 'conform_drive.yaml'
+            scenario.write_text(sim_scenario_yaml(a.start_gap_mm), encoding='utf-8')
+            ros_args = (ros_args or ['--ros-args']) + ['-p', f'scenario:={scenario}']
+        return sn.main([sys.argv[0], *ros_args])
+
+
+if __name__ == '__main__':
+    sys.exit(main())
