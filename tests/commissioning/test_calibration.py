@@ -273,6 +273,56 @@ def test_a_stale_stream_at_rest_is_waited_for_then_aborts():
     assert t == pytest.approx(0.18, abs=0.002)
 
 
+def _descend_until_stop(p, t, pos, **kw):
+    """Follow the procedure's commands with an ideal axis; return the lowest position."""
+    low = pos
+    for _ in range(200_000):
+        if p.finished or p.phase != Phase.DESCEND:
+            break
+        v, enable = p.step(_inp(t, pos, **{k: f(pos) for k, f in kw.items()}))
+        pos += (v if enable else 0.0) * 0.0005
+        low = min(low, pos)
+        t += 0.0005
+    return low
+
+
+def test_a_frozen_sensor_stops_the_descent():
+    """The same raw value while the axis travels 0.5 mm: stop and retract, no contact."""
+    p, t = _descending()
+    low = _descend_until_stop(p, t, 5.0)
+    assert 'raw value frozen' in p.reason and not p.record.contact_kind
+    assert low > 5.0 - 0.5 - 0.01
+    # a raw value that changes as the axis closes in goes on
+    p, t = _descending()
+    low = _descend_until_stop(p, t, 5.0, raw_hz=lambda pos: 480e3 + 100.0 * pos,
+                              status=lambda pos: STATUS_COLLISION if pos < 4.0 else STATUS_OK)
+    assert p.record.contact_kind == 'collision status' and 3.99 < low < 4.0
+
+
+def test_with_a_published_gap_the_descent_ends_at_the_reading():
+    """A sensor that never reports contact: stop at a reading below 0, or at start + 0.5 mm."""
+    # the published gap goes below zero (no collision status): contact by the reading
+    p = SweepProcedure(SweepMotion(min_start_gap_mm=1.0))
+    t = 0.0
+    while p.phase == Phase.WAIT:
+        p.step(_inp(t, 5.0, gap_mm=3.0))
+        t += 0.0005
+    low = _descend_until_stop(p, t, 5.0, raw_hz=lambda pos: 480e3 + 100.0 * pos,
+                              gap_mm=lambda pos: pos - 2.0)
+    assert p.record.contact_kind == 'gap reading below zero' and 1.94 < low < 1.96
+    # a reading that stays up while the axis goes down (a sprung nozzle, a wrong table):
+    # at most the start reading + 0.5 mm, then stop and retract
+    p = SweepProcedure(SweepMotion(min_start_gap_mm=1.0))
+    t = 0.0
+    while p.phase == Phase.WAIT:
+        p.step(_inp(t, 5.0, gap_mm=3.0))
+        t += 0.0005
+    low = _descend_until_stop(p, t, 5.0, raw_hz=lambda pos: 480e3 + 100.0 * pos,
+                              gap_mm=lambda pos: 3.0)
+    assert 'without contact, more than the start reading 3.000 mm' in p.reason
+    assert low > 5.0 - 3.5 - 0.01
+
+
 def test_start_must_be_valid_and_high_enough():
     p = SweepProcedure(SweepMotion(min_start_gap_mm=2.0))
     assert p.step(_inp(0.0, 5.0, gap_mm=1.0)) == (0.0, False)
@@ -317,20 +367,22 @@ def test_motion_bounds_are_checked():
 
 
 # ---- the table type (the controller's side) -------------------------------------------
-@pytest.mark.parametrize('decreasing', [False, True])
-def test_interpolation_equals_scipy_pchip(decreasing):
+def test_interpolation_equals_scipy_pchip():
     rng = np.random.default_rng(4)
     gap = np.cumsum(rng.uniform(0.01, 0.3, 40))
-    raw = np.cumsum(rng.uniform(1.0, 500.0, 40)) * (-1 if decreasing else 1) + 4e5
-    conv = RawToGap(CapTable(tuple(raw), tuple(gap), 0.001),  # random: not smooth
-                    TableLimits(max_first_gap_mm=1.0, max_roughness_mm=1e9))
-    x, y = (raw[::-1], gap[::-1]) if decreasing else (raw, gap)
-    ref = PchipInterpolator(x, y)
-    q = np.linspace(x[0], x[-1], 5001)
+    raw = np.cumsum(rng.uniform(1.0, 500.0, 40)) + 4e5
+    limits = TableLimits(max_first_gap_mm=1.0, max_roughness_mm=1e9)
+    conv = RawToGap(CapTable(tuple(raw), tuple(gap), 0.001), limits)  # random: not smooth
+    ref = PchipInterpolator(raw, gap)
+    q = np.linspace(raw[0], raw[-1], 5001)
     np.testing.assert_allclose(conv.gaps_mm(q), ref(q), rtol=0, atol=1e-12)
     for r in q[::97]:
         assert conv.gap_mm(float(r)) == pytest.approx(float(ref(r)), abs=1e-12)
-    assert np.all(np.diff(conv.gaps_mm(q)) * (-1 if decreasing else 1) >= 0)  # monotone
+    assert np.all(np.diff(conv.gaps_mm(q)) >= 0)  # monotone
+    # the same table with the raw values the other way round (a vendor mix-up: it would
+    # read "far" at contact) is refused: the contract's frequency rises with the gap
+    with pytest.raises(TableError, match='raw falls with the gap'):
+        RawToGap(CapTable(tuple(2 * 4e5 - raw), tuple(gap), 0.001), limits)
 
 
 def _sim_table(step=0.02, top=6.0, noise=0.004) -> CapTable:
@@ -344,9 +396,12 @@ def test_out_of_range_raw_is_invalid_never_extrapolated():
     # wider than calibrated: the widest gap, invalid, out of range
     assert conv.convert(hi + 1.0, True, STATUS_OK) == (conv.gap_max_mm, False,
                                                        STATUS_OUT_OF_RANGE)
-    # closer than calibrated: the smallest gap, invalid, status 0 (the controller infers a
-    # collision from it), never a value below the table
-    assert conv.convert(lo - 1.0, True, STATUS_OK) == (conv.gap_min_mm, False, STATUS_OK)
+    # closer than calibrated: the smallest gap, invalid, a collision whatever the driver sent
+    # (an out-of-range status would read as miss-panel: no retract), never below the table
+    assert conv.convert(lo - 1.0, True, STATUS_OK) == (conv.gap_min_mm, False,
+                                                       STATUS_COLLISION)
+    assert conv.convert(lo - 1.0, False, STATUS_OUT_OF_RANGE) == (conv.gap_min_mm, False,
+                                                                  STATUS_COLLISION)
     assert math.isnan(conv.gap_mm(lo - 1e-6)) and math.isnan(conv.gap_mm(hi + 1e-6))
     assert conv.convert(math.nan, True, STATUS_OK)[1:] == (False, STATUS_FAULT)
     # the sensor's own status passes, even in range
@@ -354,7 +409,7 @@ def test_out_of_range_raw_is_invalid_never_extrapolated():
     g, ok, st = conv.convert(mid, True, STATUS_COLLISION)
     assert not ok and st == STATUS_COLLISION and g == pytest.approx(1.0, abs=1e-4)
     assert conv.convert(mid, True, STATUS_OK)[1:] == (True, STATUS_OK)
-    assert conv.out_of_range == 2
+    assert conv.out_of_range == 3
 
 
 def test_closer_than_the_table_is_a_collision_for_the_controller():
@@ -381,6 +436,11 @@ def test_closer_than_the_table_is_a_collision_for_the_controller():
     (lambda d: d.pop('noise_mm'), 'noise_mm missing'),
     (lambda d: d.update(format='other/1'), 'format'),
     (lambda d: d.update(points='none'), 'points must be a list'),
+    (lambda d: d.update(repeatability_mm=float('inf')), 'repeatability_mm'),
+    (lambda d: d.update(repeatability_mm=-5.0), 'repeatability_mm'),
+    (lambda d: d.update(noise_mm=10 ** 400), 'noise_mm missing or not a number'),
+    (lambda d: d.update(points=[[2 * d['points'][0][0] - r, g] for r, g in d['points']]),
+     'raw falls with the gap'),
 ])
 def test_broken_table_files_are_rejected_with_the_reason(tmp_path, change, reason):
     d = yaml.safe_load(table_yaml(_sim_table()))

@@ -406,6 +406,8 @@ def _add_identify(p: argparse.ArgumentParser) -> None:
 
 
 def _run_identify(a: argparse.Namespace) -> int:
+    import numpy as np
+
     from .commissioning.identify import IdentifyError
     from .commissioning.identify_report import identify_bag, parse_window, write_outputs
     from .offline.report import strict_json
@@ -420,6 +422,9 @@ def _run_identify(a: argparse.Namespace) -> int:
         summ = write_outputs(ident, out)
     except IdentifyError as exc:
         raise CliError(' '.join(str(exc).split())) from None
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # extreme data
+        raise CliError(f"the bag's data cannot be fitted ({type(exc).__name__}: "
+                       f'{" ".join(str(exc).split())[:200]})') from None
     ax = ident.axis
     print(f'axis: b0 {ax.b0.value:.6g} [{ax.b0.ci[0]:.6g}, {ax.b0.ci[1]:.6g}], T1 '
           f'{ax.t1_s.value * 1e3:.4g} ms, dead time {ax.dead_time_s.value * 1e3:.4g} ms, '

@@ -143,7 +143,14 @@ class CapTable:
         dr = np.diff(raw)
         sign = 1.0 if raw[-1] > raw[0] else -1.0
         back = sign * dr <= 0.0
-        if back.any():
+        if sign < 0.0:
+            # the contract (CapacitiveHeight.raw_hz): the oscillator's frequency falls as the
+            # capacitance rises, i.e. as the nozzle closes in; a table the other way round is
+            # a mix-up that would read "far" at contact
+            out.append(f'raw falls with the gap ({raw[0]:.6g} Hz at {gap[0]:.4f} mm, '
+                       f'{raw[-1]:.6g} Hz at {gap[-1]:.4f} mm): the raw frequency must rise '
+                       'with the gap (docs/interfaces.md)')
+        elif back.any():
             i = int(np.argmax(back))
             out.append(f'not monotonic: raw {"falls" if sign > 0 else "rises"} from '
                        f'{raw[i]:.6g} to {raw[i + 1]:.6g} Hz between gaps {gap[i]:.4f} and '
@@ -334,8 +341,8 @@ class RawToGap:
             return g, bool(valid) and status == STATUS_OK, status
         self.out_of_range += 1
         near = (raw_hz < self._x[0]) == self._near_is_low
-        if near:  # closer than calibrated: the smallest gap; status 0 -> inferred collision
-            return self.gap_min_mm, False, status
+        if near:  # closer than calibrated: the smallest gap, a collision whatever was sent
+            return self.gap_min_mm, False, STATUS_COLLISION
         return self.gap_max_mm, False, status if status else STATUS_OUT_OF_RANGE
 
     def describe(self) -> str:
@@ -349,7 +356,10 @@ class RawToGap:
 def _num(v: Any) -> float | None:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         return None
-    return float(v)
+    try:
+        return float(v)
+    except OverflowError:  # an int beyond any float
+        return None
 
 
 def table_from_mapping(d: Any, where: str = 'table') -> CapTable:
@@ -364,8 +374,10 @@ def table_from_mapping(d: Any, where: str = 'table') -> CapTable:
         reasons.append(f'{where}: noise_mm missing or not a number (the sweep records it)')
     rep = d.get('repeatability_mm')
     rep_v = math.nan if rep is None else _num(rep)
-    if rep_v is None:
-        reasons.append(f'{where}: repeatability_mm = {rep!r}: must be a number or null')
+    if rep_v is None or not (rep_v != rep_v or (math.isfinite(rep_v) and rep_v >= 0.0)):
+        reasons.append(f'{where}: repeatability_mm = {rep!r:.40}: must be a finite number >= 0 '
+                       'or null (not measured)')
+        rep_v = math.nan
     pts = d.get('points')
     raw: list[float] = []
     gap: list[float] = []

@@ -322,6 +322,11 @@ class FollowController:
         return FollowState(self._state)
 
     @property
+    def projected_state(self) -> FollowState:
+        """Return the state once the queued commands apply at the next tick."""
+        return FollowState(self._projected_state())
+
+    @property
     def followed(self) -> bool:
         """In position within tolerance for the hold time since the last approach (随动到位)."""
         return self._followed

@@ -168,6 +168,7 @@ class FollowNode(Node):
         # sensor.table_file: the raw -> gap table (docs/calibration.md), None = gap_mm as sent
         self.cap_table: RawToGap | None = None
         self._pending_table: tuple[RawToGap | None] | None = None
+        self._last_sample: tuple[float, float, bool, int, bool] | None = None
         try:
             self.params = self._params_from_ros({})
             self.cap_table = self._load_table(self.params)
@@ -303,7 +304,7 @@ class FollowNode(Node):
             candidate.sensor.table_file
             and candidate.follow.collision_gap_mm != self.params.follow.collision_gap_mm)
         if table_changed:
-            state = self.controller.state
+            state = self.controller.projected_state  # a start queued this tick counts too
             if state not in (FollowState.IDLE, FollowState.FAULT):
                 return SetParametersResult(successful=False, reason=(
                     'sensor.table_file: a table changes only while not following (state '
@@ -313,7 +314,8 @@ class FollowNode(Node):
             except ParameterError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         self._pending_params = candidate  # applied at the next tick boundary
-        self._pending_table = (table,) if table_changed else None
+        if table_changed:  # rclpy calls this once per parameter: never drop a pending table
+            self._pending_table = (table,)
         return SetParametersResult(successful=True)
 
     def _load_table(self, params: ControllerParams) -> RawToGap | None:
@@ -351,18 +353,23 @@ class FollowNode(Node):
         self._gap_last_seq = seq
         self.gap_seq = seq
         self.gap_stamp_s, stamp_ok = self._receive(msg.header.stamp)
+        self._last_sample = (msg.gap_mm, msg.raw_hz, msg.valid, msg.status, stamp_ok)
+        self._set_gap(*self._last_sample)
+
+    def _set_gap(self, gap_mm: float, raw_hz: float, valid: bool, status: int,
+                 stamp_ok: bool) -> None:
         table = self.cap_table
         if table is None:
-            self.gap_mm = msg.gap_mm
-            self.gap_valid = msg.valid and stamp_ok
-            self.gap_status = msg.status if stamp_ok else CapacitiveHeight.STATUS_FAULT
+            self.gap_mm = gap_mm
+            self.gap_valid = valid and stamp_ok
+            self.gap_status = status if stamp_ok else CapacitiveHeight.STATUS_FAULT
         else:
             # the controller converts raw -> gap (docs/calibration.md); outside the table:
             # invalid, never extrapolated
-            gap, valid, status = table.convert(msg.raw_hz, msg.valid, msg.status)
+            gap, ok, st = table.convert(raw_hz, valid, status)
             self.gap_mm = gap
-            self.gap_valid = valid and stamp_ok
-            self.gap_status = status if stamp_ok else CapacitiveHeight.STATUS_FAULT
+            self.gap_valid = ok and stamp_ok
+            self.gap_status = st if stamp_ok else CapacitiveHeight.STATUS_FAULT
 
     def _on_feedback(self, msg: AxisFeedback) -> None:
         seq = msg.seq
@@ -385,6 +392,8 @@ class FollowNode(Node):
             self.controller.set_params(self.params)
             if self._pending_table is not None:
                 self.cap_table, self._pending_table = self._pending_table[0], None
+                if self._last_sample is not None:  # the held sample, through the new table
+                    self._set_gap(*self._last_sample)
             self._publish_parameters()
         t_s = (start_mono - self._t0_ns) * 1e-9
         gap_stamp_s, enc_stamp_s = self.gap_stamp_s, self.enc_stamp_s

@@ -181,9 +181,21 @@ class Bringup:
 
 
 def interrupt_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
-    """SIGINT a node process (it commands zero and shuts down); SIGKILL its group if it hangs."""
+    """SIGINT a node process (it commands zero and shuts down); SIGKILL its group if it hangs.
+
+    A process that leads its own group (started with ``start_new_session``) gets the SIGINT as
+    a terminal's Ctrl-C would send it, to the whole group: a wrapper such as ``ros2 run``
+    waits for its child, which must get the signal itself to command zero.
+    """
     if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
+        try:
+            leader = os.getpgid(proc.pid) == proc.pid
+        except ProcessLookupError:
+            leader = False
+        if leader:
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:

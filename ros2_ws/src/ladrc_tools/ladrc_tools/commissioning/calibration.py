@@ -91,6 +91,9 @@ class SweepMotion:
     stall_window_s: float = 0.1
     stall_ratio: float = 0.25
     retract_tol_mm: float = 0.01
+    beyond_reading_mm: float = 0.5  # with a published gap: descend at most reading + this
+    below_zero_mm: float = 0.05     # a published gap this far below zero is contact
+    frozen_travel_mm: float = 0.5   # a raw value unchanged over this much travel is frozen
 
     BOUNDS = {
         'descent_mm_s': (0.01, 2.0), 'retract_mm_s': (0.01, 20.0),
@@ -98,7 +101,9 @@ class SweepMotion:
         'min_start_gap_mm': (0.0, 50.0), 'settle_s': (0.0, 10.0),
         'stale_timeout_s': (0.001, 1.0), 'invalid_timeout_s': (0.001, 1.0),
         'stall_window_s': (0.01, 2.0), 'stall_ratio': (0.01, 0.9),
-        'retract_tol_mm': (0.001, 1.0),
+        'retract_tol_mm': (0.001, 1.0), 'beyond_reading_mm': (0.0, 5.0),
+        'below_zero_mm': (0.0, 1.0),
+        'frozen_travel_mm': (0.01, 5.0),
     }
 
     def problems(self) -> list[str]:
@@ -227,6 +232,9 @@ class SweepProcedure:
         self._invalid_since = math.nan
         self._window: deque[tuple[float, float]] = deque()
         self._full_speed_t = math.nan
+        self._start_gap_mm = math.nan  # the published gap reading at the start (NaN: raw only)
+        self._raw_last = math.nan      # the raw value and the position where it last changed
+        self._raw_pos = math.nan
 
     # ---- state -------------------------------------------------------------------------
     @property
@@ -336,6 +344,8 @@ class SweepProcedure:
             if t_b - t_a > 0.5 * m.stall_window_s:
                 speed = abs(p_b - p_a) / (t_b - t_a)
                 limit = 2.0 * max(m.descent_mm_s, m.retract_mm_s) + 0.5
+                if self.phase == Phase.DESCEND:  # the phase's own commanded speed
+                    limit = 2.0 * m.descent_mm_s + 0.5
                 if speed > limit:
                     return self.abort(f'the axis moves at {speed:.3g} mm/s, faster than '
                                       f'{limit:.3g} mm/s (commanded at most '
@@ -360,6 +370,7 @@ class SweepProcedure:
         self.velocity_mm_s = 0.0
         if t - self._t_phase >= m.settle_s:
             self.record.start_position_mm = inp.position_mm
+            self._start_gap_mm = inp.gap_mm
             self._enter(Phase.DESCEND, t)
             self._window.clear()
         return 0.0, True
@@ -381,9 +392,23 @@ class SweepProcedure:
                                   'start')
         if not self._contact and inp.status == STATUS_COLLISION:
             self._contact, self._contact_pos = 'collision status', pos
+        if not self._contact and inp.gap_mm == inp.gap_mm and inp.gap_mm <= -m.below_zero_mm:
+            # a backstop for a sensor that never reports the collision: its own gap reading
+            # clearly below zero (beyond its noise; the status comes first on a sound sensor)
+            self._contact, self._contact_pos = 'gap reading below zero', pos
         if self._contact:
             return self._stop(t, self._contact, '')
         travel = self.record.start_position_mm - pos
+        if travel > self._start_gap_mm + m.beyond_reading_mm:  # NaN (raw only): never
+            return self._stop(t, '', f'{travel:.3f} mm below the start without contact, more '
+                              f'than the start reading {self._start_gap_mm:.3f} mm + '
+                              f'{m.beyond_reading_mm:g} mm: the sensor never reported it')
+        # a raw value that does not change while the axis travels is a frozen sensor
+        if inp.raw_hz != self._raw_last:
+            self._raw_last, self._raw_pos = inp.raw_hz, pos
+        elif self._raw_pos - pos > m.frozen_travel_mm:
+            return self._stop(t, '', f'raw value frozen at {inp.raw_hz!r} over '
+                              f'{self._raw_pos - pos:.3f} mm of travel: a frozen sensor')
         if travel >= m.max_travel_mm:
             return self._stop(t, '', f'no contact within max_travel_mm {m.max_travel_mm:g} '
                               'mm below the start: start lower or raise the limit')

@@ -438,9 +438,9 @@ def fit_axis(s: AxisSeries, max_dead_time_s: float = 0.02) -> AxisFit:
                   n_samples=int(y.size), travel_mm=travel, dead_time_grid=grid_rss, series=s,
                   model_mm=r + y, notes=notes)
     problems = []
-    if b0.rel_halfwidth() > MAX_B0_REL_HALFWIDTH:
+    if not b0.rel_halfwidth() <= MAX_B0_REL_HALFWIDTH:  # NaN too
         problems.append(f'b0 = {b0.value:.4g} ± {b0.rel_halfwidth() * 100:.0f} % (95 %)')
-    if p[1] > T1_RANGE_S[0] * 1.01 and t1.rel_halfwidth() > MAX_T1_REL_HALFWIDTH:
+    if p[1] > T1_RANGE_S[0] * 1.01 and not t1.rel_halfwidth() <= MAX_T1_REL_HALFWIDTH:
         problems.append(f'T1 = {t1.value * 1e3:.3g} ms ± {t1.rel_halfwidth() * 100:.0f} % '
                         '(95 %)')
     if problems:
@@ -619,9 +619,10 @@ def suggest(axis: AxisFit, sensor_lag_s: float = 0.0) -> Suggestion:
     Raises :class:`IdentifyError` when no set on the search passes the stability gate.
     """
     from ladrc_follow.control.loop import AxisModel, analyse_params, frequency_grid
-    from ladrc_follow.control.params import ParameterError, params_from_dict
+    from ladrc_follow.control.params import ControllerParams, ParameterError, params_from_dict
 
-    h = axis.h_s
+    # the controller's tick, not the bag's sample period: the gate counts dead time in it
+    h = ControllerParams().h_s
     b0 = axis.b0.value
     t1 = axis.t1_s.value
     unresolved = t1 < h  # a lag below a tick is not resolved: plan with one tick

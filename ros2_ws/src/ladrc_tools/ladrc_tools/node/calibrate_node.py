@@ -112,6 +112,8 @@ class CalibrateNode(Node):
         self.drive_fault = False
         self.drive_reason = ''
         self.cmd_seq = 0
+        self._gap_seq = -1  # the newest sample seen of each stream (repeats are not fresh)
+        self._fb_seq = -1
         self.create_subscription(CapacitiveHeight, 'axis/capacitive_height', self._on_gap,
                                  RECORD)
         self.create_subscription(AxisFeedback, 'axis/feedback', self._on_feedback, RECORD)
@@ -137,6 +139,9 @@ class CalibrateNode(Node):
 
     def _on_gap(self, msg: CapacitiveHeight) -> None:
         t = self._now_s()
+        if msg.seq <= self._gap_seq:
+            return  # a repeated or older sample is not fresh data (a driver re-sending)
+        self._gap_seq = msg.seq
         self.raw_hz, self.gap_mm = msg.raw_hz, msg.gap_mm
         self.valid, self.status, self.gap_t = msg.valid, msg.status, t
         run = self.run
@@ -145,6 +150,9 @@ class CalibrateNode(Node):
                                     msg.gap_mm, msg.valid, msg.status, self.pos_mm)
 
     def _on_feedback(self, msg: AxisFeedback) -> None:
+        if msg.seq <= self._fb_seq:
+            return  # a repeated or older sample is not fresh data
+        self._fb_seq = msg.seq
         self.pos_mm, self.enc_t = msg.position_mm, self._now_s()
         self.drive_enabled, self.drive_fault = msg.drive_enabled, msg.drive_fault
         self.drive_reason = msg.fault_reason

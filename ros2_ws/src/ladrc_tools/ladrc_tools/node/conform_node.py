@@ -81,6 +81,7 @@ NODE_NAME = 'ladrc_conform'
 PERIOD_NS = int(round(H_S * 1e9))
 READER_DEPTH = 10000  # 5 s of a 2 kHz topic: the loop polls far more often than that
 SPEED_WINDOW_NS = 10_000_000  # the speed bound is judged over >= 10 ms of encoder travel
+MAX_PLAUSIBLE_GAP_MM = 50.0  # beyond any capacitive height sensor: a reading not in mm
 # aborts that a stall of the host causes as well as a driver: the motion tests are repeated
 RETRYABLE = ('stale data', 'drive fault during the test')
 BAG_TOPICS = (GAP_TOPIC, FEEDBACK_TOPIC, COMMAND_TOPIC, '/diagnostics', 'run/scenario')
@@ -143,6 +144,7 @@ class ConformProbe:
         self.c = {k: [] for k in ('send', 'vel', 'enable')}
         self.segments: list[Segment] = []
         self.graph = Graph()
+        self._excitation: np.ndarray | None = None  # the profile, computed before the motion
         self.aborted = ''
         self.not_run = ''
         self.notes: list[str] = []
@@ -331,8 +333,11 @@ class ConformProbe:
         self._deadline = time.monotonic_ns()
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            self._tick()
-            self._send(0.0, False)
+            self._send(0.0, False)  # first: reading samples must not keep the zero from going
+            try:
+                self._tick()
+            except Exception:  # noqa: BLE001 - a broken sample cannot stop the stop
+                time.sleep(H_S)
 
     # ---- the safety checks ----------------------------------------------------------------
     def _check(self) -> str:
@@ -344,6 +349,12 @@ class ConformProbe:
             if now - d['recv'][-1] > stale_ns:
                 return (f'stale data: no {name} for {(now - d["recv"][-1]) * 1e-6:.0f} ms '
                         f'(bound {p.stale_s * 1e3:g} ms)')
+            # a driver that re-sends its last sample (acquisition hung) is stale too: the
+            # sender's stamp must advance within the bound
+            n_recent = min(len(d['stamp']), int(p.stale_s / H_S) + 2)
+            if n_recent >= int(p.stale_s / H_S) + 2 and d['stamp'][-1] == d['stamp'][-n_recent]:
+                return (f'stale data: the {name} stamp has not advanced for {n_recent} samples '
+                        '(a driver re-sending its last sample?)')
         g = self.g
         for i in range(self._gap_cursor, len(g['recv'])):
             gap, status = g['gap'][i], g['status'][i]
@@ -448,6 +459,9 @@ class ConformProbe:
         gap, valid, status = self.g['gap'][-1], self.g['valid'][-1], self.g['status'][-1]
         if not (valid and status == STATUS_OK and math.isfinite(gap)):
             return f'the gap reading is invalid (status {status})'
+        if gap > MAX_PLAUSIBLE_GAP_MM:
+            return (f"gap reading {gap:.4g}: beyond any capacitive sensor's range "
+                    f'({MAX_PLAUSIBLE_GAP_MM:g} mm): not in mm (µm?); nothing is moved')
         if gap - p.max_travel_mm < p.min_gap_mm:
             return (f'gap {gap:.3f} mm: travel down to the bound ({p.max_travel_mm:g} mm) could '
                     f'end below the minimum {p.min_gap_mm:g} mm; raise the axis or lower '
@@ -465,6 +479,11 @@ class ConformProbe:
         self.not_run = self._precondition()
         if not self.not_run:
             self.not_run = self._make_publisher()
+        if not self.not_run:  # the publisher may have taken seconds: look again
+            self.graph = self.read_graph()
+            self.not_run = self._precondition()
+        self._excitation = (p.excitation.velocity_mm_s(H_S) if p.excitation is not None
+                            else None)  # computed before the 2 kHz stream starts
         if self.not_run:
             self.log(f'conform: motion tests not run: {self.not_run}')
             return
@@ -497,9 +516,9 @@ class ConformProbe:
               and self._constant(UP, p.half_s, v, True)
               and self._constant(DOWN, p.half_s, -v, True)
               and self._constant('settle', settle, 0.0, True))
-        if ok and p.excitation is not None:
+        if ok and self._excitation is not None:
             ex = p.excitation
-            ok = (self._command(EXCITATION, ex.velocity_mm_s(H_S), True, ex.amplitude_mm_s)
+            ok = (self._command(EXCITATION, self._excitation, True, ex.amplitude_mm_s)
                   and self._constant('settle', settle, 0.0, True))
         return ok and self._constant(WATCHDOG, p.watchdog_run_s, v, True) and self._silence()
 
@@ -690,15 +709,18 @@ def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[
     from rclpy.signals import SignalHandlerOptions
 
     with building(out) as tmp:
-        proc, label = _start_driver(opts, tmp, env)
-        log(f'conform: {label} on ROS_DOMAIN_ID={domain}')
-        context = rclpy.Context()
-        rclpy.init(context=context, domain_id=domain,
-                   signal_handler_options=SignalHandlerOptions.NO)
+        proc = None
         probe = None
         rec = None
         stop_code = None
+        context = None
         try:
+            # everything from the driver's start on is inside the clean-up below
+            proc, label = _start_driver(opts, tmp, env)
+            log(f'conform: {label} on ROS_DOMAIN_ID={domain}')
+            context = rclpy.Context()
+            rclpy.init(context=context, domain_id=domain,
+                       signal_handler_options=SignalHandlerOptions.NO)
             probe = ConformProbe(context, opts.plan, opts.tolerances, tmp / 'bag', log)
             if opts.thread_priority > 0:
                 from ladrc_follow.node.realtime import apply_realtime
@@ -728,7 +750,8 @@ def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[
                     stop_code = interrupt_process(proc, 10.0)
                 if probe is not None:
                     probe.destroy()
-                rclpy.try_shutdown(context=context)
+                if context is not None:
+                    rclpy.try_shutdown(context=context)
         result = evaluate(rec, opts.tolerances)
         lines = [f'driver: {label}', f'ROS_DOMAIN_ID {domain}',
                  f'commands: {probe.command_qos or "none sent"}',
