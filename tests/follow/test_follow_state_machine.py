@@ -110,10 +110,27 @@ def test_pid_only_configuration_never_enters_ladrc():
 
 # ---------------------------------------------------------------------------- wavy sheet
 
-def test_holds_gap_on_sine_sheet_in_ladrc():
+LAW_ONLY = {'edge': {'verify_sink': 0.0, 'verify_start_mm': 0.0}}
+"""The edge verification's moves up off: what the law alone tracks."""
+LIFT_MM = 0.1
+"""The verification's move up (edge.verify_mm_s x verify_move_s), a deliberate excursion."""
+
+
+def _verify_excursion_mm(sheet_speed_mm_s: float) -> float:
+    """Largest gap error one verification adds: the move up, and the sheet's motion meanwhile.
+
+    The law is overridden for the whole window (pre, move, settle), so the sheet moves
+    unfollowed for that long.
+    """
+    e = EdgeParams()
+    return LIFT_MM + sheet_speed_mm_s * (e.verify_pre_s + e.verify_move_s + e.verify_settle_s)
+
+
+@pytest.mark.parametrize('overrides', [LAW_ONLY, {}])
+def test_holds_gap_on_sine_sheet_in_ladrc(overrides):
     amp, f_hz = 0.5, 1.0
     res, rec = run_scenario(
-        FollowController(ControllerParams()), 3.0,
+        FollowController(params_from_dict(overrides)), 3.0,
         [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}], initial_gap_mm=1.0,
         sheet={'profiles': [{'kind': 'sine', 'amp_mm': amp, 'freq_hz': f_hz, 't_start_s': 0.5}]})
     st = np.asarray(rec.states)
@@ -123,20 +140,28 @@ def test_holds_gap_on_sine_sheet_in_ladrc():
     # A·ω/kp = 0.31 mm; the ESO cancels the surface motion, so the error must be far smaller
     lag_bound = amp * 2 * math.pi * f_hz / ControllerParams().law.kp
     err = np.abs(res.true_gap_mm[sel] - 1.0)
-    assert err.max() < 0.1 < lag_bound
+    # shipped: the falling half of each period is verified by short moves up (docs/safety.md)
+    assert err.max() < 0.1 < lag_bound or not overrides
+    assert err.max() < 0.1 + _verify_excursion_mm(amp * 2 * math.pi * f_hz)
     assert res.metrics.collisions == 0
+    e = EdgeParams()
+    start = round((e.verify_pre_s + e.verify_move_s + e.verify_settle_s) / H)
+    assert (rec.c.counts['verify'] > start) == (not overrides)  # beyond the start's one
 
 
-def test_holds_gap_on_random_waviness_in_ladrc():
+@pytest.mark.parametrize('overrides', [LAW_ONLY, {}])
+def test_holds_gap_on_random_waviness_in_ladrc(overrides):
     res, rec = run_scenario(
-        FollowController(ControllerParams()), 3.0,
+        FollowController(params_from_dict(overrides)), 3.0,
         [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}], initial_gap_mm=1.0,
         sheet={'profiles': [{'kind': 'waviness', 'rms_mm': 0.3, 'cutoff_hz': 2.0}]})
     st = np.asarray(rec.states)
     sel = np.arange(len(st)) * H >= 0.3
     assert (st[sel] == 4).all()
     err = res.true_gap_mm[sel] - 1.0
-    assert np.sqrt(np.mean(err ** 2)) < 0.05 and np.abs(err).max() < 0.15
+    # shipped: a few ~0.1 mm excursions (falling stretches verified) add to the RMS
+    rms_bound, max_bound = (0.05, 0.15) if overrides else (0.07, 0.15 + _verify_excursion_mm(3.0))
+    assert np.sqrt(np.mean(err ** 2)) < rms_bound and np.abs(err).max() < max_bound
 
 
 # ---------------------------------------------------------------------------- faults
@@ -307,9 +332,12 @@ def test_locking_waits_for_enabled_drive_then_times_out():
 
 def test_not_followed_alarm_after_widened_tolerance():
     # a sensor gain that oscillates faster than the loop can follow: never within tolerance
+    # (the edge verification off: it would fault first, unable to tell the 40 Hz wobble from
+    # an edge, "could not be verified before closing in")
     c = FollowController(ControllerParams(follow=FollowParams(followed_widen_s=0.3,
                                                                followed_timeout_s=0.5,
-                                                               followed_wide_tol_mm=0.06)))
+                                                               followed_wide_tol_mm=0.06),
+                                          edge=EdgeParams(verify_sink=0.0, verify_start_mm=0.0)))
     loop = Loop(c, gap0_mm=1.0)
     c.command('start_follow', target_gap_mm=1.0)
 
@@ -367,7 +395,9 @@ def test_gradient_follow_moves_after_its_delay_at_its_speed():
     loop.run(1)
     assert int(c.state) == 2
     loop.run_until(lambda: c.followed, 4000)
-    moving = np.asarray(loop.u[k0:])
+    # from the gradient's start (before it, the level reached at start_follow is verified by
+    # the edge guard's move up, at the controller's own limits)
+    moving = np.asarray(loop.u[k0 + round(0.1 / H):])
     assert np.abs(moving).max() <= v_g + 1e-9
     assert np.abs(np.diff(moving)).max() <= 500.0 * H + 1e-9
     loop.run(400)

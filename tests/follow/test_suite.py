@@ -41,15 +41,34 @@ def test_quick_suite_writes_one_row_per_case_with_seed_columns(quick_run):
     assert all(r['final_state'] != 'FAULT' and r['collisions'] == 0 for r in rows)
 
 
-def test_ladrc_deviation_range_on_the_thin_sheet_is_smaller_than_the_pid(quick_run):
+@pytest.fixture(scope='module')
+def seed_run(tmp_path_factory):
+    """Run the thin sheet as the notes ran it: without the edge verification the seed lacks."""
+    out = tmp_path_factory.mktemp('suite_seed')
+    code = main(['suite', '--quick', '-q', '--jobs', '2', '--scenarios', 'thin_sheet',
+                 '--variants', ','.join(VARIANTS), '--law-only', '-o', str(out)])
+    assert code == 0
+    return out, json.loads((out / 'suite.json').read_text())['rows']
+
+
+def test_ladrc_deviation_range_on_the_thin_sheet_is_smaller_than_the_pid(seed_run, quick_run):
     # notes §5.3.5: LADRC -0.7..+0.7 mm against the PID's -1..+1.49 mm; the quick cut (3 s)
     # still contains the flick at 1.5 s.
-    _, rows = quick_run
-    thin = {r['variant']: r for r in rows if r['scenario'] == 'thin_sheet'}
+    thin = {r['variant']: r for r in seed_run[1]}
+    assert '--law-only' in (seed_run[0] / 'suite.md').read_text()
     rng = {v: r['deviation_max_mm'] - r['deviation_min_mm'] for v, r in thin.items()}
     assert thin['ladrc']['ladrc_share'] > 0.9  # the LADRC really ran (not machining)
     assert thin['pid']['ladrc_share'] == 0.0
     assert rng['ladrc'] < 0.9 * rng['pid'], rng
+    # shipped: the gas pushes the plate down 0.9 mm at up to 21 mm/s when it comes on; that
+    # sinks below the verified level faster than it can be verified, so the nozzle holds
+    # (docs/safety.md): a wider range above the target, never closer, no fault
+    _, rows = quick_run
+    shipped = {r['variant']: r for r in rows if r['scenario'] == 'thin_sheet'}
+    for v in VARIANTS:
+        assert shipped[v]['deviation_max_mm'] > thin[v]['deviation_max_mm']
+        assert shipped[v]['deviation_min_mm'] > thin[v]['deviation_min_mm'] - 0.05
+        assert shipped[v]['final_state'] != 'FAULT' and shipped[v]['collisions'] == 0
 
 
 def test_amplitude_at_recovers_a_sine_and_chatter_ignores_slow_motion():

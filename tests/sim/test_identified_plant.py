@@ -93,13 +93,19 @@ def test_the_loop_on_the_identified_plant():
 
 
 @pytest.mark.parametrize('mode', ['ladrc', 'pid'])
-def test_the_shipped_controller_follows_the_identified_plant(mode):
+@pytest.mark.parametrize('verify', [False, True])
+def test_the_shipped_controller_follows_the_identified_plant(mode, verify):
     sc = load_scenario('identified_plant')
-    ctrl = FollowController(ControllerParams(), mode=mode)
+    params = ControllerParams() if verify else params_from_dict(
+        {'edge': {'verify_sink': 0.0, 'verify_start_mm': 0.0}})
+    ctrl = FollowController(params, mode=mode)
     res = run(sc, ctrl, record_internals=True)
     assert ctrl.fault_reason in (None, '')
     assert res.metrics.collisions == 0
-    assert res.metrics.error_rms_mm < (0.02 if mode == 'ladrc' else 0.06)
+    # the law alone; with the edge verification's ~0.1 mm moves up on the falling stretches
+    # of the wavy sheet (docs/safety.md) the RMS error grows by about 0.02 mm
+    bound = (0.02 if mode == 'ladrc' else 0.06) + (0.025 if verify else 0.0)
+    assert res.metrics.error_rms_mm < bound
 
 
 def test_a_matched_b0_runs_the_gain_1_step_as_the_nominal_one():

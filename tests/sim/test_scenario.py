@@ -62,8 +62,9 @@ def test_defaults_and_event_sorting():
     assert [e.name for e in sc.timeline] == ['start_follow', 'gradient_follow']
     assert sc.timeline[1].args == {'target_gap_mm': 2.0, 'delay_s': 0.0}
     assert sc.duration_s == 1.0 and isinstance(sc.duration_s, float)
-    assert set(COMMANDS) == {'start_follow', 'set_target', 'stop_follow', 'machining',
-                             'height_compensation', 'gradient_follow', 'target_wave'}
+    assert set(COMMANDS) == {'start_follow', 'set_target', 'stop_follow', 'reset_fault',
+                             'machining', 'height_compensation', 'gradient_follow',
+                             'target_wave'}
     wave = scenario_from_dict({'name': 'w', 'duration_s': 1, 'timeline': [
         {'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1},
         {'t_s': 0.2, 'do': 'target_wave', 'amp_mm': 0.1, 'freq_hz': 5}]})
@@ -94,3 +95,11 @@ def test_binary_and_deeply_nested_files_are_one_line_errors(tmp_path):
         with pytest.raises(ScenarioError) as info:
             load_scenario(path)
         assert expect in str(info.value) and '\n' not in str(info.value)
+
+
+def test_the_live_sim_forwards_every_scenario_command_to_a_follow_service():
+    sim_node = pytest.importorskip('ladrc_sim.node.sim_node',
+                                   reason='the sim node needs ROS 2 (not in the noble-test env)')
+    SERVICES = sim_node.SERVICES  # noqa: N806
+
+    assert set(SERVICES) == set(COMMANDS)

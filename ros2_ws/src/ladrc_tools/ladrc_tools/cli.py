@@ -147,6 +147,9 @@ def _add_suite(p: argparse.ArgumentParser) -> None:
     p.add_argument('--jobs', type=int, default=2, help='worker processes (default: 2)')
     p.add_argument('--quick', action='store_true',
                    help='cut every scenario to 3 s (smoke test, not the quality figures)')
+    p.add_argument('--law-only', action='store_true',
+                   help="the control laws alone: the edge verification's moves up off, as in "
+                        'the seed firmware (docs/quality.md tables; docs/safety.md: its cost)')
     p.add_argument('-q', '--quiet', action='store_true', help='no progress on stderr')
 
 
@@ -173,12 +176,13 @@ def _run_suite(a: argparse.Namespace) -> int:
     try:
         rows, wall = timed_suite(scenarios=split(a.scenarios), variants=split(a.variants),
                                  base_params=base, jobs=a.jobs, quick=a.quick,
-                                 progress=progress)
+                                 laws_only=a.law_only, progress=progress)
     except SuiteError as exc:
         raise CliError(str(exc)) from None
     command = ' '.join(['ladrc suite'] + [f'--{k} {v}' for k, v in (
         ('scenarios', a.scenarios), ('variants', a.variants), ('params', a.params),
-        ('jobs', a.jobs)) if v] + (['--quick'] if a.quick else []) + ['-o', str(a.output)])
+        ('jobs', a.jobs)) if v] + (['--quick'] if a.quick else [])
+        + (['--law-only'] if a.law_only else []) + ['-o', str(a.output)])
     write_outputs(rows, a.output, command)
     print(markdown_table(rows))
     print(json.dumps({'output': str(a.output), **summary(rows, wall)}))

@@ -21,21 +21,34 @@ shrinks by the axis travel, at an edge by more (gain > 1). So:
   sheet (gain ≤ ``gain_max``); a gain above it faults as above.
 * **A far drop** of the apparent surface below its slow reference (``drop_mm``, the seed's
   ``CheckForOutPanelEdge`` in ``Follow_OnStep``) faults as before.
+* **A slow sink is verified.** While following, the axis barely moves against the sheet, so
+  the gain has no excitation: an apparent surface that sinks ``verify_sink`` × target below
+  the lowest level verified within ``verify_memory_s`` is verified before it is followed
+  further: a short move up (the safe direction) with the law's output overridden, and
+  :func:`fitted_gain` fits the reading against the encoder with the sheet's own motion as a
+  cubic in time. A sink too fast to fit holds; a fit that cannot tell holds and is retried;
+  ``verify_confirm`` gains significantly above ``verify_gain_max`` in a row are an edge.
+  A follow that starts less than ``verify_start_mm`` above its target, and a level reached
+  without any judged gain, are verified the same way before they are followed.
 
-What it cannot see: a nozzle that slides off the sheet slowly while the sheet may also be
-falling slowly; docs/safety.md gives the figures. Plain Python scalars, one tick at a time.
+What it cannot see: a slide that the sheet's own rise hides (the apparent surface does not
+sink), and a sensor too noisy to fit (it holds instead); docs/safety.md gives the figures.
+Plain Python scalars, one tick at a time (numpy for the fit at the end of a verification).
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 import math
+
+import numpy as np
 
 from .schema import Section, param
 
 _EDGE = 'notes §5.3 item 3 (边缘, 反馈系数)'
 
-OK, FALLING, EDGE, VERIFY, UNVERIFIED = 0, 1, 2, 3, 4
+OK, FALLING, EDGE, VERIFY, HOLD = 0, 1, 2, 3, 4
 """Verdicts of :meth:`EdgeGuard.update`."""
 
 
@@ -68,14 +81,57 @@ class EdgeParams(Section):
                               'moving during a slow move would bias it', ge=1.0, le=1000.0)
     probe_mm_s: float = param(20.0, 'mm/s', 'speed cap toward the sheet after a fast fall, '
                               'until the feedback gain has found a sheet', gt=0.0, le=1000.0)
-    verify_drop_mm: float = param(0.0, 'mm', 'while following, an apparent surface this far '
-                                  'below its last verified level is verified again by a short '
-                                  'move up (gain_travel_mm at probe_mm_s, the safe direction) '
-                                  'before it is followed further down; 0 = off', ge=0.0,
-                                  le=50.0, seed=_EDGE)
-    verify_mm_s: float = param(5.0, 'mm/s', 'a verification starts only while the apparent '
-                               'surface moves slower than this (a sheet in faster motion would '
-                               'bias the move up)', gt=0.0, le=1000.0)
+    verify_sink: float = param(0.25, '1', 'while following, an apparent surface that sinks '
+                               'this fraction of the target gap below the level last verified '
+                               'over the sheet is verified again by a short move up before it is '
+                               'followed further down; 0 = off', ge=0.0, le=1.0, seed=_EDGE)
+    verify_start_mm: float = param(2.0, 'mm', 'a follow that starts with the reading less than '
+                                   'this above the target (an approach too short to judge the '
+                                   'gain) verifies the gain first; 0 = never', ge=0.0, le=50.0,
+                                   seed=_EDGE)
+    verify_mm_s: float = param(20.0, 'mm/s', 'speed of the verification move up', gt=0.0,
+                               le=100.0)
+    verify_move_s: float = param(0.005, 's', 'duration of the verification move up (it lifts '
+                                 'the nozzle about verify_mm_s x verify_move_s)', gt=0.0,
+                                 le=0.1)
+    verify_pre_s: float = param(0.02, 's', 'the verification holds (command 0, the law not '
+                                'stepped) this long before the move: the fit starts on an axis '
+                                'that moves by the command alone', ge=0.0, le=0.2)
+    verify_settle_s: float = param(0.03, 's', 'held after the move, still fitted: the reading is '
+                                   "fitted against the encoder with the sheet's own motion as "
+                                   'a quadratic in time over the whole window', ge=0.005,
+                                   le=0.2)
+    verify_speed_mm_s: float = param(5.0, 'mm/s', 'a verification starts only while the '
+                                     'apparent surface moves slower than this (low-passed over '
+                                     'verify_settle_s): faster sheet motion is no cubic over '
+                                     'the window', gt=0.0, le=1000.0)
+    verify_memory_s: float = param(1.0, 's', 'a level verified over the sheet stays verified '
+                                   'this long after the surface was last within verify_sink of '
+                                   'it: a sheet that oscillates within verified levels is not '
+                                   'verified again each time it falls', ge=0.0, le=10.0,
+                                   seed=_EDGE)
+    verify_gain_max: float = param(1.2, '1', 'a verification that measures a feedback gain '
+                                   'above this (or none) holds, and verify_confirm of them in a '
+                                   'row are an edge', gt=1.0, le=5.0, seed=_EDGE)
+    verify_fit_noise: float = param(2.0, '1', 'a verification whose fit leaves residuals of '
+                                    "more than this many times the reading's own noise (the "
+                                    'sheet moved other than a cubic, the sensor gain changed) '
+                                    'cannot tell an edge: it holds instead', gt=1.0, le=100.0)
+    noise_tau_s: float = param(0.1, 's', "time constant of the reading's noise estimate (its "
+                               'second differences, low-passed)', gt=0.0, le=10.0)
+    noise_floor_mm: float = param(0.002, 'mm', 'the reading noise the residual check assumes at '
+                                  'least (a quieter or noise-free reading, e.g. quantized to '
+                                  'its resolution, still leaves the fit that much)', gt=0.0,
+                                  le=1.0)
+    verify_retry_s: float = param(0.1, 's', 'a verification that could not tell is repeated '
+                                  'this long after it while the surface stays sunk (a passing '
+                                  'disturbance, a tube ridge, is then over)', gt=0.0, le=10.0)
+    verify_retries: int = param(2, '1', 'repetitions in a row of a verification that could '
+                                'not tell (each lifts the nozzle again); after them only a '
+                                'further verify_sink sink verifies again', ge=0, le=10)
+    verify_confirm: int = param(2, '1', 'verifications in a row above verify_gain_max that '
+                                'make an edge (FAULT); the first ones hold and verify again',
+                                ge=1, le=10)
     probe_s: float = param(0.1, 's', 'the probe after a fast fall ends after this time without '
                            'closing in (nothing left to close)', gt=0.0, le=10.0)
 
@@ -132,95 +188,365 @@ _AVG = 4
 """Samples averaged at each end of the travel (reading noise / 2)."""
 
 
-class EdgeGuard:
-    """The edge checks of one follow: ``update(enc, gap, approaching)`` returns a verdict.
+def fitted_gain(t_s: list[float], z_mm: list[float],
+                r_mm: list[float]) -> tuple[float, float, float]:
+    """Fit the feedback gain ``k`` of ``r = k z + a + b t + c t² + d t³``: ``(k, se, rms)``.
 
-    OK: go on; FALLING: hold (no command toward the sheet); VERIFY: move up at ``probe_mm_s``
-    (the law is not stepped); EDGE: the gain says edge; UNVERIFIED: the move up could not be
-    judged within ``probe_s``. ``down_cap_mm_s`` is the speed limit toward the sheet it asks
-    for (inf when none).
+    The cubic in time takes the sheet's own motion out (the sheet moves the reading, not the
+    encoder); only the axis' own move, a step through the axis' lag, determines ``k``. A
+    quadratic would leave a 6 Hz, 0.5 mm plate's motion biasing ``k`` by up to 0.6 over the
+    window, the cubic by 0.1. The standard error is the residual's (noise and whatever of the
+    sheet's motion is no cubic), ``rms`` the residual's RMS (mm). NaNs: too few samples or no
+    move to judge.
+    """
+    n = len(t_s)
+    if n < 8:
+        return math.nan, math.nan, math.nan
+    t = np.asarray(t_s) - t_s[0]
+    t = t / max(float(t[-1]), 1e-9)
+    z = np.asarray(z_mm) - z_mm[0]
+    a = np.column_stack((z, np.ones(n), t, t * t, t * t * t))
+    coef, _, rank, _ = np.linalg.lstsq(a, np.asarray(r_mm) - r_mm[0], rcond=None)
+    if rank < 5:
+        return math.nan, math.nan, math.nan
+    res = a @ coef - (np.asarray(r_mm) - r_mm[0])
+    ss = float(res @ res)
+    var = ss / (n - 5)
+    # residuals that are not white (band-limited gain noise, the sheet's motion) carry fewer
+    # independent samples: the larger of the AR(1) factor (1 + rho) / (1 - rho) and a
+    # Newey-West (Bartlett) sum over a tenth of the window (the fit's own detrending makes
+    # longer sums fall back towards 1), so a doubtful fit errs towards "cannot tell"
+    rho = min(max(float(res[1:] @ res[:-1]) / max(ss, 1e-30), 0.0), 0.95)
+    lags = max(1, n // 10)
+    nw = 1.0 + 2.0 * sum((1.0 - j / (lags + 1)) * float(res[j:] @ res[:-j])
+                         for j in range(1, lags + 1)) / max(ss, 1e-30)
+    factor = max((1.0 + rho) / (1.0 - rho), nw)
+    se = math.sqrt(max(var * float(np.linalg.pinv(a.T @ a)[0, 0]) * max(factor, 1.0), 0.0))
+    return float(coef[0]), se, math.sqrt(float(res @ res) / n)
+
+
+_WARM: list[bool] = []
+
+
+def warm_up() -> None:
+    """Make the first :func:`fitted_gain` call here, not in the loop (once per process).
+
+    LAPACK's first call starts its thread pool and workspaces: 11 ms on this VM with memory
+    locked (the follow node's ``lock_memory``), 46 ms under load, against 0.2 ms after.
+    """
+    if not _WARM:
+        t = [i * 0.0005 for i in range(40)]
+        fitted_gain(t, [math.sin(40.0 * x) for x in t], [math.cos(30.0 * x) for x in t])
+        _WARM.append(True)
+
+
+class EdgeGuard:
+    """The edge checks of one follow: ``update(t, enc, gap, approaching, target)`` gives a verdict.
+
+    OK: go on; FALLING: hold (no command toward the sheet, the law not stepped); HOLD: the law
+    runs, only its upward commands pass; VERIFY: the law runs with its output overridden by
+    ``verify_velocity_mm_s``; EDGE: the gain says edge (``reason`` says how it was measured).
+    ``down_cap_mm_s`` is the speed limit toward the sheet it asks for (inf when none).
     """
 
     def __init__(self, p: EdgeParams, h_s: float) -> None:
         self.params = p
         self._h = h_s
         self._c = h_s / (p.fall_tau_s + h_s)  # backward-Euler low-pass, as pid.py
+        self._c_slow = h_s / (p.verify_settle_s + h_s)
+        self._c_noise = h_s / (p.noise_tau_s + h_s)
         self._probe_max = max(1, int(round(p.probe_s / h_s)))
+        self._n_pre = int(round(p.verify_pre_s / h_s))
+        self._n_move = max(1, int(round(p.verify_move_s / h_s)))
+        self._n_settle = max(1, int(round(p.verify_settle_s / h_s)))
         self.travel = TravelGain(p.gain_travel_mm, p.judge_mm_s, h_s)
+        self._found: deque[tuple[float, float]] = deque()  # (t, level): window minimum
+        self._t = 0.0
+        self._r1 = self._r2 = math.nan  # the last two fresh readings
+        self._d2_ms = math.nan  # low-passed square of their second difference
+        self._d2_n = 0
+        warm_up()
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the history and any pending probe (a new approach)."""
+    def reset(self, start_above_mm: float = math.nan) -> None:
+        """Forget the history and any pending probe (a new approach).
+
+        ``start_above_mm``: the reading minus the target at the start of a follow; closing in
+        by less than ``verify_start_mm`` (too short to judge the gain on the way) verifies the
+        gain first. (A follow that starts at or below its target closes in on nothing; its
+        level is verified once followed, as every level reached without a judged gain.)
+        """
         self._z = self._r = math.nan
         self.surface_mm_s = 0.0
+        self._slow_mm_s = 0.0  # the same, low-passed over verify_settle_s
         self.probing = False
-        self.verifying = False
         self.verified_mm = math.nan  # apparent surface last found over a sheet
-        self._trend_mm_s = 0.0
         self._probe_ticks = 0
         self.travel.reset()
+        self._found.clear()
+        self.verifying = False
+        self._at_start = False  # the verification runs before the approach closes in
+        self._ticks = 0
+        self._t_last = math.nan
+        self._fit: list[tuple[float, float, float]] = []
+        self._z_start = self._r_start = math.nan
+        self._strikes = 0
+        self._doubt_mm = math.inf  # level of a verification that could not tell
+        self._doubt_t = 0.0  # and its time
+        self._doubt_n = 0  # such verifications in a row
+        self.doubts = 0  # such verifications in this follow
+        self.aborted = 0  # verifications given up for a sheet coming up
+        self.gain = self.gain_se = self.fit_rms_mm = math.nan  # the last verification's fit
+        self.reason = ''
+        p = self.params
+        if p.enabled and 0.0 < start_above_mm < p.verify_start_mm:
+            self._start_verify(at_start=True)
+
+    def carry_over(self, old: EdgeGuard) -> None:
+        """Keep what ``old`` found during this follow (new parameters while following).
+
+        The levels verified, the doubts and strikes stay; a verification in progress starts
+        again under the new parameters (its window is theirs).
+        """
+        for name in ('_z', '_r', '_t', '_r1', '_r2', '_d2_ms', '_d2_n', 'surface_mm_s',
+                     '_slow_mm_s', 'probing', 'verified_mm',
+                     '_probe_ticks', '_strikes', '_doubt_mm', '_doubt_t', '_doubt_n', 'doubts',
+                     'aborted', '_at_start', 'gain', 'gain_se', 'fit_rms_mm', 'reason'):
+            setattr(self, name, getattr(old, name))
+        self._found = deque(old._found)
+        self.verifying = False
+        if old.verifying:
+            self._start_verify(at_start=old._at_start)
 
     @property
     def down_cap_mm_s(self) -> float:
         """Speed limit toward the sheet: ``probe_mm_s`` until a fall is confirmed as a sheet."""
         return self.params.probe_mm_s if self.probing else math.inf
 
-    def update(self, enc_mm: float, gap_mm: float, approaching: bool) -> int:
-        """Judge one tick with a usable reading (see the module docstring)."""
+    @property
+    def verify_velocity_mm_s(self) -> float:
+        """Command during a verification: 0, up for ``verify_move_s``, 0 (all of it fitted).
+
+        The law is not followed for the whole window, so the axis' motion in it is the
+        command's alone, not the loop's answer to the reading's noise (which would bias the
+        fit: the regressor would correlate with the residual).
+        """
+        k = self._ticks - 1 - self._n_pre  # _ticks counts this tick already
+        return self.params.verify_mm_s if 0 <= k < self._n_move else 0.0
+
+    def _start_verify(self, at_start: bool = False) -> None:
+        self.verifying = True
+        self._at_start = at_start
+        self._z_start = self._z  # where the move up starts (NaN before the first tick)
+        self._r_start = self._r  # the reading there
+        self._ticks = 0
+        self._t_last = math.nan
+        self._fit = []
+
+    def update(self, t_s: float, enc_mm: float, gap_mm: float, approaching: bool,
+               target_mm: float, fresh: bool = True) -> int:
+        """Judge one tick with a usable reading at controller time ``t_s`` (module docstring).
+
+        ``fresh``: the reading is a new sample (not the encoder prediction, which has gain 1
+        by construction and is left out of the verification fit).
+        """
         dz, dr = enc_mm - self._z, gap_mm - self._r
         self._z, self._r = enc_mm, gap_mm
+        self._t = t_s
         p = self.params
-        if not (dz == dz and p.enabled):
-            return OK  # first tick, or the guard is off
+        if not p.enabled:
+            return OK
+        if fresh:
+            # the reading's noise: the second difference of white noise has 6 x its variance;
+            # the axis' and the sheet's curvature add < 0.1 µm per tick at 2 kHz
+            d2 = gap_mm - 2.0 * self._r1 + self._r2
+            if d2 == d2:
+                # a running mean until noise_tau_s worth of samples, then a low-pass
+                self._d2_n += 1
+                c = max(1.0 / self._d2_n, self._c_noise)
+                ms = self._d2_ms
+                self._d2_ms = d2 * d2 if not ms == ms else ms + c * (d2 * d2 - ms)
+            self._r2, self._r1 = self._r1, gap_mm
+        if not dz == dz:
+            # first tick
+            return self._verify_tick(enc_mm, gap_mm, fresh) if self.verifying else OK
         # the apparent surface (encoder − gap) moves by dz − dr
-        v = self.surface_mm_s = self.surface_mm_s + self._c * ((dz - dr) / self._h
-                                                               - self.surface_mm_s)
+        ds = (dz - dr) / self._h
+        v = self.surface_mm_s = self.surface_mm_s + self._c * (ds - self.surface_mm_s)
+        self._slow_mm_s += self._c_slow * (ds - self._slow_mm_s)
+        if self.verifying:
+            # no fall hold inside a verification: the move up itself makes the apparent surface
+            # fall at an edge (by (k - 1) x the lift), and a real sheet step leaves the fit a
+            # residual no cubic explains (it cannot tell: it holds)
+            return self._verify_tick(enc_mm, gap_mm, fresh)
         if v < -p.fall_mm_s:
             self.probing = True
             self._probe_ticks = 0
             self.travel.reset()
             return FALLING
         s = enc_mm - gap_mm
-        if self.verifying:
-            # the move up: judged on upward travel, where nothing can be hit; the surface's
-            # own trend before the move is taken out of the reading (a slowly falling sheet
-            # and a slowly sliding edge alike)
-            self._probe_ticks += 1
-            k = self.travel.update(enc_mm, gap_mm + self._trend_mm_s * self._probe_ticks * self._h)
-            if k == k and dz > 0.0:
-                if k > p.gain_max:
-                    return EDGE
-                self.verifying = False
-                self.verified_mm = s
-                return OK
-            return UNVERIFIED if self._probe_ticks >= self._probe_max else VERIFY
         if approaching:
+            if self._at_start and self._doubt_mm < math.inf:
+                # the verification before the approach could not tell: not closing in yet
+                return self._retry_or(HOLD, at_start=True)
             k = self.travel.update(enc_mm, gap_mm)
             if k > p.gain_max:
-                return EDGE
+                return self._edge_travel(k)
             if k == k:
-                self.verified_mm = s
-        elif self.probing:
+                self._verified(s)
+            return OK
+        if self.probing:
             # after a fall, the closing in (downward travel) is what is judged
             k = self.travel.update(enc_mm, gap_mm)
             self._probe_ticks += 1
             if k == k and dz < 0.0:
                 if k > p.gain_max:
-                    return EDGE
+                    return self._edge_travel(k)
                 self.probing = False  # a sheet under the nozzle: full speed again
-                self.verified_mm = s
+                self._verified(s)
             elif self._probe_ticks >= self._probe_max:
                 self.probing = False  # nothing left to close in
-        else:
-            ver = self.verified_mm
+            return OK
+        ver = self.verified_mm
+        if p.verify_sink <= 0.0:
             if not ver == ver or s > ver:
-                self.verified_mm = s  # a rising surface (or the first followed tick) is safe
-            elif (p.verify_drop_mm > 0.0 and ver - s > p.verify_drop_mm
-                  and -p.verify_mm_s < v < p.verify_mm_s):
-                self.verifying = True
-                self._trend_mm_s = v
-                self._probe_ticks = 0
-                self.travel.reset()
-                self.travel.update(enc_mm, gap_mm)
-                return VERIFY
+                self.verified_mm = s  # no verification: the level is taken as it comes
+            return OK
+        if not ver == ver:
+            # followed without a judged gain (an approach too slow to judge): verify first
+            if self._doubt_mm == math.inf:
+                self._start_verify()
+                return self._verify_tick(enc_mm, gap_mm, False)
+            return self._retry_or(HOLD, give_up=True)
+        if s > ver:
+            self.verified_mm = ver = s  # a rising surface is safe
+        found = self._found
+        sink = p.verify_sink * target_mm
+        while found and found[0][0] < t_s - p.verify_memory_s:
+            found.popleft()
+        if found and found[0][1] < ver:
+            ver = found[0][1]  # the lowest level verified within verify_memory_s
+            if s - ver < sink:
+                # a surface that keeps coming back to it (an oscillating sheet) keeps it
+                # verified: it is forgotten only verify_memory_s after the last visit
+                found[0] = (t_s, ver)
+        if ver - s > sink:
+            if abs(self._slow_mm_s) >= p.verify_speed_mm_s:
+                return HOLD  # sunk too far to follow unverified, too fast to verify
+            if s > self._doubt_mm - sink:
+                return self._retry_or(HOLD)  # a verification here could not tell
+            self._start_verify()
+            return self._verify_tick(enc_mm, gap_mm, False)
+        if ver - s < 0.5 * sink:  # back well within the budget (not the reading's noise)
+            self._doubt_mm = math.inf
+            self._doubt_n = 0
         return OK
+
+    def _retry_or(self, verdict: int, at_start: bool = False, give_up: bool = False) -> int:
+        """After a verification that could not tell: repeat it when due, else ``verdict``.
+
+        Before closing in (``at_start``) and at a level nothing has verified (``give_up``),
+        the retries used up are an EDGE: nothing else would ever let the follow go on.
+        """
+        p = self.params
+        if self._doubt_n <= p.verify_retries and self._t - self._doubt_t >= p.verify_retry_s:
+            self._start_verify(at_start)
+            return self._verify_tick(self._z, self._r, False)
+        if (at_start or give_up) and self._doubt_n > p.verify_retries:
+            where = 'before closing in' if at_start else 'at the level the follow reached'
+            self.reason = (f'edge: the feedback gain could not be verified {where} '
+                           f'({self._doubt_n} verifications: {self._fit_text()}); holding')
+            return EDGE
+        return verdict
+
+    @property
+    def noise_mm(self) -> float:
+        """The reading's noise (RMS, mm) from its second differences, at least noise_floor_mm."""
+        return max(math.sqrt(self._d2_ms / 6.0), self.params.noise_floor_mm)
+
+    def _fit_text(self) -> str:
+        p = self.params
+        return (f'last gain {self.gain:.2f} ± {self.gain_se:.2f}, residual '
+                f'{self.fit_rms_mm * 1e3:.1f} µm against a reading noise of '
+                f'{self.noise_mm * 1e3:.1f} µm (limits {p.verify_gain_max:g}, '
+                f'{p.verify_fit_noise:g}x)')
+
+    def _verify_tick(self, enc_mm: float, gap_mm: float, fresh: bool) -> int:
+        """One tick of a verification: hold, move up, hold, then fit the gain over the window.
+
+        Over the sheet (``k`` + its standard error <= ``verify_gain_max``, from a fit that can
+        tell, after a real move) the level is verified. A gain above the limit by more than
+        twice its standard error is a strike, and ``verify_confirm`` strikes in a row are an
+        edge (between them it verifies again at once). Anything else (a fit that cannot tell,
+        a tick the guard did not see) holds: nothing further down; it is retried after
+        ``verify_retry_s``.
+        """
+        t = self._t
+        if fresh:
+            self._fit.append((t, enc_mm, gap_mm))
+        if not self._z_start == self._z_start:
+            self._z_start, self._r_start = enc_mm, gap_mm  # a verification's first tick
+        skipped = self._t_last == self._t_last and t - self._t_last > 1.5 * self._h
+        self._t_last = t
+        self._ticks += 1
+        p = self.params
+        lift_mm = p.verify_mm_s * p.verify_move_s
+        if not self._at_start and gap_mm < self._r_start - lift_mm:
+            # the sheet comes up faster than the move lifts: give way, the law follows it. The
+            # level is not verified by it (a nozzle coming back over a ragged edge narrows the
+            # reading too); a sheet that keeps rising is a rising surface, which is safe
+            self.verifying = False
+            self.aborted += 1
+            self.surface_mm_s = self._slow_mm_s = 0.0
+            return OK
+        if self._ticks < self._n_pre + self._n_move + self._n_settle and not skipped:
+            return VERIFY
+        ts, z, r = zip(*self._fit, strict=True) if self._fit else ((), (), ())
+        k, se, rms = fitted_gain(list(ts), list(z), list(r)) if not skipped else (
+            math.nan, math.nan, math.nan)
+        self.gain, self.gain_se, self.fit_rms_mm = k, se, rms
+        self.verifying = False
+        self.surface_mm_s = self._slow_mm_s = 0.0  # the surface speed restarts after the move
+        level = enc_mm - gap_mm
+        lifted = bool(z) and max(z) - self._z_start >= 0.5 * lift_mm
+        # a sheet: the gain one standard error above the fit still under the limit, from a fit
+        # that can tell (the residual within verify_fit_noise x the reading's noise, the
+        # nozzle really lifted)
+        fits = rms <= p.verify_fit_noise * self.noise_mm
+        can_tell = fits and lifted
+        if k + se <= p.verify_gain_max and can_tell:  # (NaN fails this)
+            self._strikes = self._doubt_n = 0
+            self._doubt_mm = math.inf
+            self._at_start = False
+            self._verified(level)
+            return OK
+        if not (k - 2.0 * se > p.verify_gain_max and can_tell):
+            self.doubts += 1
+            self._doubt_n += 1
+            self._doubt_mm, self._doubt_t = level, t
+            return HOLD
+        self._strikes += 1
+        if self._strikes >= p.verify_confirm:
+            lift_um = (max(z) - self._z_start) * 1e3
+            self.reason = (f'edge: a move up of {lift_um:.0f} µm '
+                           f'found the nozzle leaving the sheet (feedback gain {k:.2f} ± '
+                           f'{se:.2f} in {self._strikes} verification(s) in a row, limit '
+                           f'{p.verify_gain_max:g}); holding')
+            return EDGE
+        self._start_verify(self._at_start)  # verify again: one measurement is not an edge yet
+        return VERIFY
+
+    def _verified(self, level_mm: float) -> None:
+        """Take a level found over the sheet (gain judged) as the reference from now on."""
+        self.verified_mm = level_mm
+        found = self._found
+        while found and found[-1][1] >= level_mm:
+            found.pop()  # never the window's minimum again
+        found.append((self._t, level_mm))
+
+    def _edge_travel(self, k: float) -> int:
+        self.reason = (f'edge: the nozzle is leaving the sheet (feedback gain {k:.2f}: the '
+                       f'reading moved {k:.2f} mm per mm of axis travel over the last '
+                       f'{self.travel.window * self._h * 1e3:.3g} ms, limit '
+                       f'{self.params.gain_max:g}); holding')
+        return EDGE

@@ -36,7 +36,7 @@ import math
 import numbers
 from typing import Any, NamedTuple
 
-from .edge import EDGE, FALLING, UNVERIFIED, VERIFY, EdgeGuard
+from .edge import EDGE, FALLING, HOLD, VERIFY, EdgeGuard
 from .follow_params import FollowParams
 from .interp import Interpolator, InterpParams
 from .kalman import kalman_gated_step
@@ -188,6 +188,7 @@ class FollowController:
         self._u_unlim = 0.0
         self._flags = 0
         self._src = 0            # source of the command: 0 ramp, 1 interp, 2 PID, 3 LADRC
+        self._override = math.nan  # edge guard: a verification's command, -inf up only
         self._target = math.nan  # commanded target (without compensation)
         self._offset = 0.0       # active height compensation
         self._target_eff = math.nan
@@ -228,7 +229,8 @@ class FollowController:
         self._jump_t0 = math.nan  # time of the first jumped reading being held
         self._invalid_rate = 0.0   # low-passed share of invalid samples
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
-                       'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'verify': 0,
+                       'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'sink_hold': 0,
+                       'verify': 0,
                        'edge_gain': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
@@ -280,7 +282,10 @@ class FollowController:
         self._frozen_n = f.frozen_ticks
         self._frozen_mm = f.frozen_travel_mm
         self._c_edge = h / (e.ref_tau_s + h)  # backward-Euler low-pass, as pid.py
+        old_guard = getattr(self, '_guard', None)
         self._guard = EdgeGuard(e, h)
+        if old_guard is not None:
+            self._guard.carry_over(old_guard)  # what this follow verified stays verified
         ext = p.eso.disturbance_limit
         self._ext_limit = ext if ext > 0.0 else math.inf
 
@@ -601,11 +606,11 @@ class FollowController:
             self._dulim = min(va[1] * h, self._du_max)
         self._interp.reset(self._u)
         self._enc0 = enc
-        self._guard.reset()
+        target = self._target_eff
+        self._guard.reset(gap - target)
         self._pk = _PK_RESET
         self._wave = None  # a re-approach ends a test wave
         self._closing = False
-        target = self._target_eff
         self._dir = 1.0 if target >= gap else -1.0
         pid = self._pid
         pid.reset(gap, target, self._u, enc)
@@ -824,8 +829,10 @@ class FollowController:
         st = self._state
         guard = self._guard
         # closing in is measured until followed (approach, then the PID's first settling)
-        verdict = guard.update(enc, gap, st == _PREINTERP or not self._followed
-                               or self._closing or self._wave is not None)
+        verdict = guard.update(self._tick * self._h, enc, gap,
+                               st == _PREINTERP or not self._followed
+                               or self._closing or self._wave is not None,
+                               self._target_eff, self._fresh)
         if verdict == FALLING:
             # faster than a sheet falls: not followed down; closing in afterwards is probed
             self.counts['fall_hold'] += 1
@@ -834,22 +841,28 @@ class FollowController:
                 if self._approach_ticks >= self._timeout_ticks:
                     return self._fault(self._timeout_reason(gap - self._target_eff))
             return self._hold_up_only()
-        if verdict == VERIFY:
-            # the apparent surface fell far below its last verified level: verify it going up
+        # the law keeps running under an override (its observer fed the applied command): it
+        # resumes bumplessly however long the override lasts
+        self._override = math.nan
+        if verdict == HOLD:
+            # sunk below the verified level while too fast to verify (or where a verification
+            # could not tell): not followed further down
+            self.counts['sink_hold'] += 1
+            if st == _PREINTERP:
+                return self._hold_up_only()
+            self._override = -math.inf  # up only
+        elif verdict == VERIFY:
+            # the apparent surface sank below its last verified level (or a follow starts
+            # close to its target): a short move up measures the feedback gain
             self.counts['verify'] += 1
-            return self._move_up(guard.params.probe_mm_s)
-        if verdict == UNVERIFIED:
-            return self._fault(f'edge: the apparent surface fell more than '
-                               f'{guard.params.verify_drop_mm:g} mm and a move up of '
-                               f'{guard.params.probe_s:g} s could not verify the sheet; holding')
+            if self._u < 0.0:
+                self._u = 0.0  # the sink is evidence enough: nothing further down at once
+            if st == _PREINTERP:
+                return self._move_up(guard.verify_velocity_mm_s, enc)
+            self._override = guard.verify_velocity_mm_s
         if verdict == EDGE:
             self.counts['edge_gain'] += 1
-            k = guard.travel.gain
-            return self._fault(
-                f'edge: the nozzle is leaving the sheet (feedback gain {k:.2f}: the reading '
-                f'moved {k:.2f} mm per mm of axis travel over the last '
-                f'{guard.travel.window * self._h * 1e3:.3g} ms, limit {guard.params.gain_max:g}); '
-                'holding')
+            return self._fault(guard.reason)
         self._down_cap = guard.down_cap_mm_s
         if st == _PREINTERP:
             return self._preinterp(gap, enc)
@@ -932,20 +945,31 @@ class FollowController:
         self._pk = (x, p, n, enc)
         return x
 
+    def _overridden(self, u_c: float, src: int) -> float:
+        """Apply the edge guard's override to the law's command ``u_c``, then the limits."""
+        ov = self._override
+        self._src = src
+        if ov == ov:
+            if ov == -math.inf:
+                u_c = u_c if u_c > 0.0 else 0.0  # hold: upward only
+                if self._u < 0.0:
+                    self._u = 0.0  # motion toward the sheet stops at once
+            else:
+                u_c = ov  # a verification's move
+            self._src = 0
+        return self._limit(u_c)
+
     def _pid_tick(self, gap: float, enc: float, target: float) -> float:
         self._pid_modes()
         pid = self._pid
-        u_c = pid.step(self._pid_gap(gap, enc), enc, target)
-        u = self._limit(u_c)
-        self._src = 2
+        u = self._overridden(pid.step(self._pid_gap(gap, enc), enc, target), 2)
         if u != pid.u:
             pid.set_pre_out(u)
         return u
 
     def _ladrc_tick(self, gap: float, enc: float, target: float) -> float:
         u_c = self._ladrc_step(gap, enc, target, self._fresh)
-        u = self._limit(u_c)
-        self._src = 3
+        u = self._overridden(u_c, 3)
         if u != u_c:
             self._ladrc.u = u  # the ESO must see the applied command
         return u
@@ -1012,14 +1036,21 @@ class FollowController:
                                    f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
         return self._hold_up_only()
 
-    def _move_up(self, v_mm_s: float) -> float:
-        """Command ``v_mm_s`` upward (ramped), the law not stepped; it resumes bumplessly."""
-        u = self._limit(v_mm_s)
+    def _move_up(self, v_mm_s: float, enc: float) -> float:
+        """Command ``v_mm_s`` >= 0 (ramped), the law not stepped; it resumes bumplessly.
+
+        In PREINTERPOLATE the plan restarts from here (the verification before an approach).
+        """
+        u = self._limit(max(v_mm_s, 0.0))  # a_max-ramped: no evidence of danger yet
         self._src = 0
         st = self._state
         if st == _LADRC:
             self._ladrc.u = u
         elif st == _PID:
+            self._pid.set_pre_out(u)
+        elif st == _PREINTERP:
+            self._interp.reset(u)
+            self._enc0 = enc
             self._pid.set_pre_out(u)
         return u
 
@@ -1077,6 +1108,8 @@ class FollowController:
         elif self._lock_ok:
             # seed Locking_IsFinished -> PREINTERPOLATE (InitPreInterpolate there)
             self._enter_approach(gap, enc, None)
+            if self._guard.verifying:
+                return self._move_up(0.0, enc)  # the gain is verified before closing in
             return self._preinterp(gap, enc)
         else:
             # usable inputs on two consecutive ticks: one tick to initialise, then approach

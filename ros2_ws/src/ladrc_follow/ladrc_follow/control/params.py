@@ -551,12 +551,25 @@ def _follow_problems(p: ControllerParams) -> list[str]:
     return out
 
 
+VERIFY_LIFT_MIN_MM = 0.02
+"""The verification's move up (edge.verify_mm_s x verify_move_s) must lift at least this:
+a few times a capacitive sensor's noise, or no fit can tell a gain."""
+
+
 def _edge_problems(p: ControllerParams) -> list[str]:
     e = p.edge
+    out = []
     if e.probe_mm_s < e.judge_mm_s:
-        return [f'edge.probe_mm_s ({e.probe_mm_s:g}) below edge.judge_mm_s ({e.judge_mm_s:g}): '
-                'closing in after a fast fall could never be judged']
-    return []
+        out.append(f'edge.probe_mm_s ({e.probe_mm_s:g}) below edge.judge_mm_s '
+                   f'({e.judge_mm_s:g}): closing in after a fast fall could never be judged')
+    lift = e.verify_mm_s * e.verify_move_s
+    if e.verify_sink > 0.0 and lift < VERIFY_LIFT_MIN_MM:
+        out.append(f'edge.verify_mm_s x edge.verify_move_s lifts {lift * 1e3:.3g} µm, below '
+                   f'{VERIFY_LIFT_MIN_MM * 1e3:g} µm: the verification could never tell a gain')
+    if e.verify_sink > 0.0 and e.verify_move_s < 2.0 * p.h_s:
+        out.append(f'edge.verify_move_s ({e.verify_move_s:g}) shorter than two ticks '
+                   f'({2.0 * p.h_s:g} s): the move up would not happen')
+    return out
 
 
 # The checks that relate several parameters, run once every value is in its declared range.

@@ -7,8 +7,9 @@ The controller is duck-typed (:class:`Controller`):
   passes fresh samples every tick unless a ``sensor_dropout`` / ``encoder_dropout`` event
   holds them (then the stamps stop advancing and the controller sees the input age);
 * ``controller.command(name, **kwargs)`` receives the scenario's follow commands
-  (``start_follow``, ``set_target``, ``stop_follow``, ``machining``,
-  ``height_compensation``, ``gradient_follow``) at their tick, before that tick's ``step``;
+  (``start_follow``, ``set_target``, ``stop_follow``, ``reset_fault``, ``machining``,
+  ``height_compensation``, ``gradient_follow``, ``target_wave``) at their tick, before that
+  tick's ``step``;
 * optionally ``controller.internals() -> Mapping[str, float]``, recorded every tick when
   ``run(..., record_internals=True)``;
 * optionally ``controller.truth(t_s, true_gap_mm, sheet_mm, nozzle_mm, coverage,

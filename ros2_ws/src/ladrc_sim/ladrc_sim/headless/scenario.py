@@ -48,6 +48,7 @@ COMMANDS: dict[str, dict[str, tuple]] = {
     'start_follow': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0)},
     'set_target': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0)},
     'stop_follow': {},
+    'reset_fault': {},  # the CNC clears a latched FAULT (an edge, a miss-panel)
     'machining': {'on': (bool, REQUIRED, None, None)},
     'height_compensation': {'offset_mm': (float, REQUIRED, -10.0, 10.0)},
     'gradient_follow': {'target_gap_mm': (float, REQUIRED, 0.0, 20.0),

@@ -27,6 +27,7 @@ from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, SimTruth, VelocityCom
 from ladrc_msgs.srv import (
     GradientFollow,
     HeightCompensation,
+    ResetFault,
     SetMachining,
     SetTarget,
     StartFollow,
@@ -61,6 +62,7 @@ CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 SERVICES = {
     'start_follow': (StartFollow, 'follow/start'),
     'stop_follow': (StopFollow, 'follow/stop'),
+    'reset_fault': (ResetFault, 'follow/reset_fault'),
     'set_target': (SetTarget, 'follow/set_target'),
     'machining': (SetMachining, 'follow/set_machining'),
     'height_compensation': (HeightCompensation, 'follow/height_compensation'),

@@ -166,6 +166,8 @@ class ConformProbe:
         """Take every sample waiting in the readers into the lists and the bag queue."""
         from rclpy.serialization import deserialize_message
 
+        if _SIGNALLED:
+            raise KeyboardInterrupt(_SIGNALLED.pop())  # once; the clean-up polls on
         enqueue = self._enqueue
         for topic, sub in self._subs.items():
             cls = self._types[topic]
@@ -687,6 +689,7 @@ def run_conform(opts: ConformOptions, log: Callable[[str], None] | None = None
     # SIGINT and SIGTERM both end the run through the same path: zero with enable=false, the
     # driver stopped, nothing written (a background job may even have SIGINT ignored)
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    _SIGNALLED.clear()
     for sig in previous:
         signal.signal(sig, _interrupt)
     try:
@@ -696,11 +699,17 @@ def run_conform(opts: ConformOptions, log: Callable[[str], None] | None = None
             signal.signal(sig, handler)
 
 
+_SIGNALLED: list[str] = []
+"""A SIGINT/SIGTERM received, raised as KeyboardInterrupt at the probe's next poll."""
+
+
 def _interrupt(signum: int, frame) -> None:
-    # once: the clean-up that follows (zero commands, stopping the driver) must not be cut
+    # once: the clean-up that follows (zero commands, stopping the driver) must not be cut.
+    # Only a flag here: raising from the handler could land inside a C extension call (seen:
+    # rclpy's deserialize_message turning it into a TypeError), not in the clean-up's path
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+    _SIGNALLED.append(signal.Signals(signum).name)
 
 
 def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[str, str],
@@ -752,6 +761,8 @@ def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[
                     probe.destroy()
                 if context is not None:
                     rclpy.try_shutdown(context=context)
+        if _SIGNALLED:  # a signal after the last poll: still nothing written
+            raise KeyboardInterrupt(_SIGNALLED.pop())
         result = evaluate(rec, opts.tolerances)
         lines = [f'driver: {label}', f'ROS_DOMAIN_ID {domain}',
                  f'commands: {probe.command_qos or "none sent"}',

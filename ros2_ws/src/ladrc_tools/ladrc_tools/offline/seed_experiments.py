@@ -10,7 +10,8 @@ and docs/quality.md holds the table. What "as the notes ran them" means here:
   (180, 10 800) and the "14.6 Hz" one (270, 24 300).
 * **Steps** (§5.3 items 1 and 3): the seed's re-interpolation on a target change is commented
   out, so the step goes straight to the LADRC and its TD (``follow.reinterpolate: false``);
-  the edge steps half off the sheet run without the edge guard (the seed has none). Chatter
+  the edge steps half off the sheet run without the edge guard (the seed has none; no run
+  here has the edge verification's moves up, :data:`SEED_EDGE`). Chatter
   is the command's RMS above 20 Hz *during* the step: from the step for ``STEP_WINDOW_S``.
 * **Thin sheet** (§5.3 item 5): the notes' LADRC "observer bandwidth 90 rad/s, equivalent
   gain 200" is the seed's gain rule (3ω, 3ω²) at ω = 90, i.e. betas (270, 24 300) (the "14.6
@@ -47,9 +48,14 @@ B0_IDENTIFIED = 200.0 / 16.75     # firmware b0 200 over the notes' identified g
 FIRMWARE_TDB_5HZ = 12000.0 / abs((2j * math.pi * 5) ** 2 + 400 * (2j * math.pi * 5) + 12000)
 
 
+SEED_EDGE = {'verify_sink': 0.0, 'verify_start_mm': 0.0}
+"""The seed firmware has no edge verification (its moves up would show in every figure)."""
+
+
 def _params(d: dict) -> Any:
     from ladrc_follow.control.params import params_from_dict
 
+    d = {**d, 'edge': {**SEED_EDGE, **d.get('edge', {})}}
     # an experiment harness: the notes' settings run as they are (docs/loop-analysis.md)
     return params_from_dict(d, gate=False)
 

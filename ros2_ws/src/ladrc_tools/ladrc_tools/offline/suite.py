@@ -324,13 +324,25 @@ def resolve_variants(names: Iterable[str] | None) -> list[str]:
     return list(names)
 
 
+LAW_ONLY = {'verify_sink': 0.0, 'verify_start_mm': 0.0}
+"""``--law-only``: the edge section's verification off (the seed firmware has none; its moves
+up would show in every law's figures). The fall hold and the feedback-gain checks stay."""
+
+
+def law_only(params: Any) -> Any:
+    """Return ``params`` with the edge verification off (:data:`LAW_ONLY`)."""
+    return replace(params, edge=replace(params.edge, **LAW_ONLY))
+
+
 def run_suite(scenarios: Iterable[str] | None = None, variants: Iterable[str] | None = None,
               *, base_params: Any = None, jobs: int = 2, quick: bool = False,
+              laws_only: bool = False,
               progress: Callable[[SuiteRow], None] | None = None) -> list[SuiteRow]:
     """Run every scenario × variant; rows in scenario order, then variant order.
 
     ``base_params`` (default: the shipped :class:`ControllerParams`) is what each variant
-    modifies; ``jobs`` > 1 runs the cases in a process pool of that many workers.
+    modifies; ``laws_only`` turns the edge verification off in it (:data:`LAW_ONLY`);
+    ``jobs`` > 1 runs the cases in a process pool of that many workers.
     """
     from ladrc_follow.control.params import ControllerParams, ParameterError, params_to_dict
 
@@ -339,6 +351,8 @@ def run_suite(scenarios: Iterable[str] | None = None, variants: Iterable[str] | 
     names = resolve_scenarios(scenarios)
     var = resolve_variants(variants)
     base = base_params if base_params is not None else ControllerParams()
+    if laws_only:
+        base = law_only(base)
     try:
         pdicts = {v: params_to_dict(variant_params(base, VARIANTS[v])) for v in var}
     except ParameterError as exc:
