@@ -56,6 +56,7 @@ from ladrc_follow.control.params import (  # noqa: E402
 from ladrc_follow.control.schema import entries  # noqa: E402
 from ladrc_sim.headless import runner  # noqa: E402
 from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict  # noqa: E402
+from ladrc_tools.offline.suite import LAW_ONLY  # noqa: E402
 
 FAULT = 5
 SCENARIOS = ROOT / 'tests' / 'ros' / 'scenarios'
@@ -159,7 +160,7 @@ def headless_rows() -> None:
         headless(f'sensor stream stops {ms} ms',
                  [{'t_s': 1.5, 'do': 'sensor_dropout', 'duration_s': ms * 1e-3}], sheet=sine)
     # shipped, and without the edge verification (what it buys)
-    off = params_from_dict({'edge': {'verify_sink': 0.0, 'verify_start_mm': 0.0}})
+    off = params_from_dict({'edge': dict(LAW_ONLY)})
     for label, params in (('', None), (OFF_LABEL, off)):
         for cov in (0.5, 0.06, 0.0):
             for ramp in (1.0, 0.05):

@@ -206,9 +206,12 @@ def fitted_gain(t_s: list[float], z_mm: list[float],
     t = t / max(float(t[-1]), 1e-9)
     z = np.asarray(z_mm) - z_mm[0]
     a = np.column_stack((z, np.ones(n), t, t * t, t * t * t))
-    coef, _, rank, _ = np.linalg.lstsq(a, np.asarray(r_mm) - r_mm[0], rcond=None)
-    if rank < 5:
-        return math.nan, math.nan, math.nan
+    # one SVD gives the least-squares solution and (A^T A)^-1's first entry
+    u, sv, vt = np.linalg.svd(a, full_matrices=False)
+    if sv[-1] <= sv[0] * 1e-12:
+        return math.nan, math.nan, math.nan  # no move to judge (rank < 5)
+    coef = vt.T @ ((u.T @ (np.asarray(r_mm) - r_mm[0])) / sv)
+    inv00 = float(np.sum((vt[:, 0] / sv) ** 2))
     res = a @ coef - (np.asarray(r_mm) - r_mm[0])
     ss = float(res @ res)
     var = ss / (n - 5)
@@ -221,7 +224,7 @@ def fitted_gain(t_s: list[float], z_mm: list[float],
     nw = 1.0 + 2.0 * sum((1.0 - j / (lags + 1)) * float(res[j:] @ res[:-j])
                          for j in range(1, lags + 1)) / max(ss, 1e-30)
     factor = max((1.0 + rho) / (1.0 - rho), nw)
-    se = math.sqrt(max(var * float(np.linalg.pinv(a.T @ a)[0, 0]) * max(factor, 1.0), 0.0))
+    se = math.sqrt(max(var * inv00 * max(factor, 1.0), 0.0))
     return float(coef[0]), se, math.sqrt(float(res @ res) / n)
 
 

@@ -844,6 +844,8 @@ class FollowController:
         # the law keeps running under an override (its observer fed the applied command): it
         # resumes bumplessly however long the override lasts
         self._override = math.nan
+        if (verdict == HOLD or verdict == VERIFY) and self._u < 0.0:
+            self._u = 0.0  # nothing further down at once: the sink is evidence enough
         if verdict == HOLD:
             # sunk below the verified level while too fast to verify (or where a verification
             # could not tell): not followed further down
@@ -855,8 +857,6 @@ class FollowController:
             # the apparent surface sank below its last verified level (or a follow starts
             # close to its target): a short move up measures the feedback gain
             self.counts['verify'] += 1
-            if self._u < 0.0:
-                self._u = 0.0  # the sink is evidence enough: nothing further down at once
             if st == _PREINTERP:
                 return self._move_up(guard.verify_velocity_mm_s, enc)
             self._override = guard.verify_velocity_mm_s
@@ -952,8 +952,6 @@ class FollowController:
         if ov == ov:
             if ov == -math.inf:
                 u_c = u_c if u_c > 0.0 else 0.0  # hold: upward only
-                if self._u < 0.0:
-                    self._u = 0.0  # motion toward the sheet stops at once
             else:
                 u_c = ov  # a verification's move
             self._src = 0

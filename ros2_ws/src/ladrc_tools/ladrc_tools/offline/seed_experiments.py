@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from .suite import chatter_rms, measure
+from .suite import LAW_ONLY, chatter_rms, measure
 
 H_S = 0.0005
 STEP_WINDOW_S = 0.5
@@ -48,7 +48,7 @@ B0_IDENTIFIED = 200.0 / 16.75     # firmware b0 200 over the notes' identified g
 FIRMWARE_TDB_5HZ = 12000.0 / abs((2j * math.pi * 5) ** 2 + 400 * (2j * math.pi * 5) + 12000)
 
 
-SEED_EDGE = {'verify_sink': 0.0, 'verify_start_mm': 0.0}
+SEED_EDGE = LAW_ONLY
 """The seed firmware has no edge verification (its moves up would show in every figure)."""
 
 
