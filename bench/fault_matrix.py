@@ -318,7 +318,9 @@ def live_rows(load_s: float) -> dict:
     try:
         status, truth, cmds = start_axis(nodes, probe)
         # kill while the axis moves: the sheet's 1 Hz sine runs from 4 s of the scenario
-        probe.spin_until(lambda: abs(cmds[-1][1]) > 1.5 and status[-1][0] > 5.0, 20.0)
+        moving_cmd = probe.spin_until(
+            lambda: abs(cmds[-1][1]) > 1.5 and status[-1][0] > 5.0, 20.0)
+        state_at_kill = f'{status[-1][1]} {status[-1][2]}'.strip()
         t_kill = time.time()
         nodes.kill('follow')
         probe.spin_for(1.0)
@@ -331,7 +333,8 @@ def live_rows(load_s: float) -> dict:
         rest_t = tr[moving[-1] + 2, 0] if moving.size else t_kill
         out['kill_stop_ms'] = float((rest_t - t_kill) * 1e3)
         row('controller SIGKILL while following', kill_stop_ms=out['kill_stop_ms'],
-            speed_at_kill_mm_s=v_kill, contact=bool(contacts_of(truth)))
+            speed_at_kill_mm_s=v_kill, moving_command_seen=moving_cmd,
+            state_at_kill=state_at_kill, contact=bool(contacts_of(truth)))
         out['node_crashes'] += crashed(nodes, 'sim')
     finally:
         close(nodes, probe, ctx)
