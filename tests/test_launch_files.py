@@ -108,7 +108,7 @@ def test_bringup_launch_matches_bringup_and_stops_in_order(monkeypatch, tmp_path
     assert set(nodes) == {'ladrc_recorder', 'ladrc_follow', 'ladrc_sim'}
     follow = nodes['ladrc_follow']['parameters']
     assert follow[0].endswith('follow.yaml')  # the parameter file, the launch_ros way
-    assert follow[1] == {'loop': 'deadline', 'hardware_id': 'head_3'}
+    assert follow[1] == {'loop': LAUNCH_ARGUMENTS['loop'][0], 'hardware_id': 'head_3'}
     assert nodes['ladrc_sim']['parameters'][-1]['scenario'] == 'showcase'
     assert nodes['ladrc_recorder']['parameters'][-1]['output'] == str(tmp_path / 'bag')
     # the scenario ends -> controller stops (zero command) -> recorder stops -> launch ends
@@ -116,10 +116,21 @@ def test_bringup_launch_matches_bringup_and_stops_in_order(monkeypatch, tmp_path
                              ('ladrc_recorder', 'shutdown')]
 
 
+def test_bringup_launch_in_lock_step(monkeypatch):
+    module = _load('bringup.launch.py', monkeypatch)
+    _, built = _run(module, bag='/tmp/x', lockstep='true')
+    nodes = {n.kwargs['name']: n.kwargs['parameters'][-1] for n in built
+             if type(n).__name__ == 'Node'}
+    assert nodes['ladrc_follow']['loop'] == 'lockstep'
+    assert nodes['ladrc_sim']['lockstep'] is True
+    assert nodes['ladrc_recorder']['reliable'] is True  # lock step's writers are reliable
+
+
 def test_axis_launch_has_no_simulator(monkeypatch):
     module = _load('axis.launch.py', monkeypatch)
     declared, built = _run(module)
     assert 'scenario' not in declared and {'params', 'bag', 'hardware_id'} <= set(declared)
+    assert 'lockstep' not in declared  # the sim node's alone: refused against a real axis
     nodes = {n.kwargs['name'] for n in built if type(n).__name__ == 'Node'}
     assert nodes == {'ladrc_follow'}  # no bag given: no recorder
     assert _chain(built) == [('ladrc_follow', 'shutdown')]

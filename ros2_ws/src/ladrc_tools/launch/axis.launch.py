@@ -15,7 +15,8 @@ from launch import LaunchDescription
 from launch.actions import OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 
-ARGUMENTS = {k: v for k, v in LAUNCH_ARGUMENTS.items() if k != 'scenario'}
+# no scenario, and no lock step: it is the sim node's (a drive does not wait for its controller)
+ARGUMENTS = {k: v for k, v in LAUNCH_ARGUMENTS.items() if k not in ('scenario', 'lockstep')}
 
 
 def _nodes(context):

@@ -9,6 +9,7 @@ before it closes the bag, so the zero command is in the bag then too. Isolation
 (ROS_DOMAIN_ID, localhost discovery) is the caller's environment here.
 
     ros2 launch ladrc_tools bringup.launch.py scenario:=showcase bag:=/tmp/run1
+    ros2 launch ladrc_tools bringup.launch.py scenario:=showcase lockstep:=true
     ros2 launch ladrc_tools bringup.launch.py --show-args
 """
 
@@ -24,7 +25,8 @@ def _nodes(context):
         return LaunchConfiguration(name).perform(context)
 
     specs = node_specs(arg('scenario'), arg('params') or None, arg('bag') or None,
-                       arg('loop'), arg('storage'))
+                       arg('loop'), arg('storage'),
+                       lockstep=arg('lockstep').strip().lower() in ('true', '1', 'yes'))
     for spec in specs:
         if spec.name == 'ladrc_follow':
             spec.parameters['hardware_id'] = arg('hardware_id')

@@ -5,9 +5,12 @@ Thin by design (DESIGN.md): sensor callbacks store the latest samples as plain v
 ``VelocityCommand`` and one ``FollowStatus`` (with the exact inputs used, for replay). Nothing
 else happens on the tick path: no logging, no I/O, no allocation beyond the message fill.
 
-Loop: a deadline loop on an ``EventsExecutor`` (``loop: deadline``, default) or a ROS timer
-(``loop: timer``); ``bench/loop_timing.py`` measures both, docs/follow-node.md says why the
-default won. QoS: see :mod:`ladrc_follow.node.qos`.
+Loop (``loop``, docs/follow-node.md "The loop"): ``sync``, one tick per new pair of sensor
+samples, as soon as they arrive, with its own deadline when one is late; ``deadline``, an own
+0.5 ms deadline loop; ``timer``, a ROS timer; all on an ``EventsExecutor``. ``lockstep``: one
+tick per step of the sim node (``sim/lockstep``), on the sim's clock; offered against the sim
+node only. ``bench/loop_timing.py`` measures them, docs/follow-node.md says why the default won.
+QoS: see :mod:`ladrc_follow.node.qos`.
 
 Safety: zero velocity with ``enable = false`` on stop, fault, shutdown, SIGINT and SIGTERM
 (the node installs its own signal handlers so it can still publish the zero command before the
@@ -21,6 +24,7 @@ from dataclasses import dataclass
 import gc
 import json
 import math
+import secrets
 import signal
 import sys
 import time
@@ -32,6 +36,7 @@ from ladrc_msgs.msg import (
     CapacitiveHeight,
     FollowEvent,
     FollowStatus,
+    LockStep,
     VelocityCommand,
 )
 from ladrc_msgs.srv import (
@@ -76,14 +81,31 @@ from . import qos
 from .cdr import CdrPacker
 from .realtime import apply_realtime
 
+LOOP_MODES = ('sync', 'deadline', 'timer', 'lockstep')
+
 
 @dataclass(frozen=True)
 class NodeParams:
     """Parameters of the node itself (not of the controller), fixed at start-up."""
 
-    loop: str = param('deadline', '', "tick source: 'deadline' (own deadline loop on an "
-                      "EventsExecutor) or 'timer' (a ROS steady-clock timer)",
-                      choices=('deadline', 'timer'), runtime=False)
+    loop: str = param('sync', '', "tick source: 'sync' (one tick per new sensor sample "
+                      "pair, own deadline when one is late), 'deadline' (own 0.5 ms deadline "
+                      "loop), 'timer' (a ROS steady-clock timer) or 'lockstep' (one tick per "
+                      "step of the sim node, on its clock; the sim node only)",
+                      choices=LOOP_MODES, runtime=False)
+    sync_wait_s: float = param(0.00025, 's', "loop 'sync': a tick waits for a new sample of "
+                               'both inputs at most one period plus this long after the '
+                               'previous tick, then runs on its own deadline with what it '
+                               'has (docs/follow-node.md)', gt=0.0, le=0.005, runtime=False)
+    sample_period_tolerance: float = param(0.25, '1', "loop 'sync': the senders' sample "
+                                           'period, measured from their seq over 2 s of '
+                                           'receive time, may differ from h_s by this '
+                                           'fraction; more is a FAULT (the core is '
+                                           'discretised at h_s)', gt=0.0, le=0.9,
+                                           runtime=False)
+    lockstep_timeout_s: float = param(10.0, 's', "loop 'lockstep': no step from the sim for "
+                                      'this long (wall clock) after the first one is a FAULT',
+                                      gt=0.0, le=600.0, runtime=False)
     stamp_tolerance_s: float = param(0.01, 's', 'a sample whose sender stamp differs from '
                                      'its receive time by more than this (either way) is '
                                      'invalid: transport delay plus the clock offset of driver '
@@ -134,6 +156,17 @@ def ros_value(entry: Entry, value: Any) -> Any:
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         return [float(v) for v in value]
     return value  # anything else goes to rclpy's type check as it is
+
+
+def sim_time_s(stamp_ns: int, period_ns: int, h_s: float) -> float:
+    """Seconds of a lock-step stamp, exactly as the headless runner counts time (k * h_s).
+
+    The sim's clock advances by whole periods: a stamp of step k (k * period_ns) gives
+    ``k * h_s`` bit for bit (the runner's ``np.arange(n) * h_s``); a stamp between two steps
+    adds its remainder.
+    """
+    k, rest_ns = divmod(stamp_ns, period_ns)
+    return k * h_s + rest_ns * 1e-9 if rest_ns else k * h_s
 
 
 def _defaults(packer: CdrPacker) -> list[Any]:
@@ -211,14 +244,35 @@ class FollowNode(Node):
         self._enc_last_seq = -1
         self.missed_gap_samples = 0
         self.missed_feedback_samples = 0
+        # loop 'sync': a new sample of each input since the last tick; the sample-period check
+        self.new_gap = False
+        self.new_feedback = False
+        self.sync_wait_ns = int(round(self.node_params.sync_wait_s * 1e9))
+        self.deadline_ticks = 0  # sync: ticks run on the own deadline (a sample was late)
+        self._rate_window: tuple[int, int] | None = None  # (first seq, its receive ns)
+        self.sample_period_s = math.nan  # measured from the feedback seq (loop 'sync')
+        self._period_fault = ''
+        # loop 'lockstep': the step being waited for, and when the last one came (wall clock)
+        self.lockstep = self.loop_mode == 'lockstep'
+        self._step: tuple[int, int, bool, int, bool, int] | None = None
+        self._step_wall_ns = 0
+        # One commander (docs/interfaces.md): this process' identity in every command.
+        self.commander = self.get_fully_qualified_name()
+        self.session = secrets.randbits(63) or 1
+        self.sample_seq = 0  # the feedback sample (sync, deadline, timer) or step (lockstep)
 
+        control_in = qos.LOCKSTEP_INPUT if self.lockstep else qos.CONTROL_INPUT
+        high_rate = qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE
         self.sub_gap = self.create_subscription(
-            CapacitiveHeight, 'axis/capacitive_height', self._on_gap, qos.CONTROL_INPUT)
+            CapacitiveHeight, 'axis/capacitive_height', self._on_gap, control_in)
         self.sub_fb = self.create_subscription(
-            AxisFeedback, 'axis/feedback', self._on_feedback, qos.CONTROL_INPUT)
+            AxisFeedback, 'axis/feedback', self._on_feedback, control_in)
+        if self.lockstep:
+            self.sub_step = self.create_subscription(LockStep, 'sim/lockstep', self._on_step,
+                                                     qos.LOCKSTEP_INPUT)
         self.pub_cmd = self.create_publisher(VelocityCommand, 'axis/velocity_command',
-                                             qos.HIGH_RATE)
-        self.pub_status = self.create_publisher(FollowStatus, 'follow/status', qos.HIGH_RATE)
+                                             high_rate)
+        self.pub_status = self.create_publisher(FollowStatus, 'follow/status', high_rate)
         self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS)
         self.pub_run_params = self.create_publisher(String, 'run/parameters', qos.RUN_TEXT)
@@ -238,14 +292,24 @@ class FollowNode(Node):
         # refilled in place each tick.
         self._cmd_packer = CdrPacker('ladrc_msgs/msg/VelocityCommand')
         self._cmd_vals = _defaults(self._cmd_packer)
+        cix = self._cmd_packer.index
+        self._cix_answer = cix['sample_seq']
+        self._cix_release = cix['release']
+        self._cmd_vals[cix['commander']] = self.commander
+        self._cmd_vals[cix['session']] = self.session
         self._st_packer = CdrPacker('ladrc_msgs/msg/FollowStatus')
         self._st_vals = _defaults(self._st_packer)
         ix = self._st_packer.index
+        # no CNC motion received: its values unknown, no feed override asked
+        for name in ('cnc_stamp_s', 'cnc_commanded_feed_mm_s', 'cnc_actual_feed_mm_s',
+                     'cnc_segment_left_mm', 'cnc_edge_ahead_mm'):
+            self._st_vals[ix[name]] = math.nan
+        self._st_vals[ix['feed_override_request']] = 1.0
         self._ix = ix
         self._ix_inputs = [ix[n] for n in (
             't_s', 'gap_seq', 'gap_mm', 'gap_valid', 'gap_status', 'gap_stamp_s', 'encoder_seq',
             'encoder_mm', 'encoder_stamp_s', 'drive_enabled', 'drive_fault', 'velocity_mm_s',
-            'period_us', 'compute_us', 'input_age_us', 'overrun')]
+            'period_us', 'compute_us', 'input_age_us', 'overrun', 'sample_seq')]
         self.tick_index = 0
         # Loop statistics (ring of periods for the 1 Hz percentiles).
         self._ring = np.zeros(4096)
@@ -339,7 +403,13 @@ class FollowNode(Node):
         Plausible: the sender's stamp is within ``stamp_tolerance_s`` of the node clock now
         (ROS time: the system clock, or /clock with ``use_sim_time``; not in the future, not
         delayed or skewed by more than that).
+
+        Lock step: the sample time is the sender's stamp on the sim's clock
+        (:func:`sim_time_s`); its age is judged by the core at the step's tick.
         """
+        if self.lockstep:
+            return sim_time_s(stamp.sec * 1_000_000_000 + stamp.nanosec, self.period_ns,
+                              self.h_s), True
         skew_ns = stamp.sec * 1_000_000_000 + stamp.nanosec - self._clock.now().nanoseconds
         ok = -self._stamp_tol_ns <= skew_ns <= self._stamp_tol_ns
         if not ok:
@@ -352,6 +422,7 @@ class FollowNode(Node):
             self.missed_gap_samples += seq - self._gap_last_seq - 1
         self._gap_last_seq = seq
         self.gap_seq = seq
+        self.new_gap = True
         self.gap_stamp_s, stamp_ok = self._receive(msg.header.stamp)
         self._last_sample = (msg.gap_mm, msg.raw_hz, msg.valid, msg.status, stamp_ok)
         self._set_gap(*self._last_sample)
@@ -377,16 +448,77 @@ class FollowNode(Node):
             self.missed_feedback_samples += seq - self._enc_last_seq - 1
         self._enc_last_seq = seq
         self.enc_seq = seq
+        self.new_feedback = True
+        if self.loop_mode == 'sync':
+            self._check_sample_period(seq)
         self.enc_stamp_s, stamp_ok = self._receive(msg.header.stamp)
         self.enc_mm = msg.position_mm if stamp_ok else math.nan  # not finite: a fault
         self.drive_enabled = msg.drive_enabled
         self.drive_fault = msg.drive_fault
 
+    def _check_sample_period(self, seq: int) -> None:
+        """Loop 'sync': the feedback's sample period (seq over receive time, 2 s) against h_s.
+
+        The core is discretised at h_s: ticks on samples of another period would integrate the
+        observer and the reference at the wrong rate. Counted from the sender's seq over this
+        node's own receive clock, so neither the sender's stamps nor one late sample decide.
+        """
+        now = time.monotonic_ns()
+        if self._rate_window is None or seq <= self._rate_window[0]:
+            self._rate_window = (seq, now)
+            return
+        seq0, t0 = self._rate_window
+        if now - t0 < 2_000_000_000:
+            return
+        self._rate_window = (seq, now)
+        self.sample_period_s = (now - t0) * 1e-9 / (seq - seq0)
+        deviation = self.sample_period_s / self.h_s - 1.0
+        if abs(deviation) > self.node_params.sample_period_tolerance and not self._period_fault:
+            self._period_fault = (
+                f'sample period {self.sample_period_s * 1e3:.3f} ms of axis/feedback differs '
+                f'from the controller period h_s {self.h_s * 1e3:g} ms by {deviation:+.0%} '
+                f'(tolerance {self.node_params.sample_period_tolerance:.0%}): the core is '
+                'discretised at h_s')
+
+    def _on_step(self, msg: LockStep) -> None:
+        """Lock step: the sim published step ``msg.step``; tick once its samples are here."""
+        self._step = (msg.step, msg.gap_seq, msg.gap_fresh, msg.encoder_seq, msg.encoder_fresh,
+                      msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        self._step_wall_ns = time.monotonic_ns()
+
+    def step_ready(self) -> bool:
+        """Lock step: a step is waiting and the samples it names have arrived."""
+        s = self._step
+        return s is not None and (not s[2] or self._gap_last_seq == s[1]) and (
+            not s[4] or self._enc_last_seq == s[3])
+
+    def tick_step(self) -> None:
+        """Lock step: tick k of step k, at the sim's time k h_s (runner convention)."""
+        step, _, _, enc_seq, _, stamp_ns = self._step
+        self._step = None
+        self.tick_index = step
+        self.sample_seq = step
+        self.tick(step * self.h_s, stamp_ns)
+
+    def tick_sync(self) -> None:
+        """Loop 'sync': tick on the samples received (both new, or the deadline came)."""
+        if not (self.new_gap and self.new_feedback):
+            self.deadline_ticks += 1
+        self.new_gap = self.new_feedback = False
+        if self._period_fault and self.controller.state != FollowState.FAULT:
+            self.controller.fail(self._period_fault)
+        self.tick()
+
     # ---- the tick ---------------------------------------------------------------------
-    def tick(self) -> None:
-        """One controller tick: inputs -> core -> command and status out."""
+    def tick(self, t_s: float | None = None, stamp_ns: int | None = None) -> None:
+        """One controller tick: inputs -> core -> command and status out.
+
+        ``t_s``: the tick's time (lock step: the sim's; default: the steady clock since
+        start); ``stamp_ns``: its header stamp (default: the node clock now).
+        """
         start_mono = time.monotonic_ns()
-        now_ns = self._clock.now().nanoseconds  # header stamps: the node clock (ROS time)
+        # header stamps: the node clock (ROS time)
+        now_ns = self._clock.now().nanoseconds if stamp_ns is None else stamp_ns
         if self._pending_params is not None:
             self.params, self._pending_params = self._pending_params, None
             self.controller.set_params(self.params)
@@ -395,7 +527,9 @@ class FollowNode(Node):
                 if self._last_sample is not None:  # the held sample, through the new table
                     self._set_gap(*self._last_sample)
             self._publish_parameters()
-        t_s = (start_mono - self._t0_ns) * 1e-9
+        if t_s is None:
+            t_s = (start_mono - self._t0_ns) * 1e-9
+            self.sample_seq = self.enc_seq
         gap_stamp_s, enc_stamp_s = self.gap_stamp_s, self.enc_stamp_s
         tick = TickInput(t_s, self.gap_mm, self.gap_valid, gap_stamp_s, self.enc_mm,
                          enc_stamp_s, self.drive_enabled, self.drive_fault, self.gap_status)
@@ -407,13 +541,14 @@ class FollowNode(Node):
         sec, nsec = divmod(now_ns, 1_000_000_000)
         cmd = self._cmd_vals  # header.stamp.sec, .nanosec, .frame_id, seq, velocity, enable
         cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, velocity, enable
+        cmd[self._cix_answer] = self.sample_seq
         self.pub_cmd.publish(self._cmd_packer.pack(cmd))
         compute_ns = time.monotonic_ns() - start_mono
 
         period_ns = start_mono - self._last_start_ns if self._last_start_ns else self.period_ns
         self._last_start_ns = start_mono
         self._ring[self.tick_index & 4095] = period_ns * 1e-3
-        overrun = period_ns > 2 * self.period_ns
+        overrun = period_ns > 2 * self.period_ns and not self.lockstep
         if overrun:
             self.overruns += 1
         age_us = (t_s - min(gap_stamp_s, enc_stamp_s)) * 1e6
@@ -428,7 +563,7 @@ class FollowNode(Node):
         values = (t_s, self.gap_seq, self.gap_mm, self.gap_valid, self.gap_status, gap_stamp_s,
                   self.enc_seq, self.enc_mm, enc_stamp_s, self.drive_enabled, self.drive_fault,
                   velocity, period_ns * 1e-3, compute_ns * 1e-3,
-                  age_us if math.isfinite(age_us) else -1.0, overrun)
+                  age_us if math.isfinite(age_us) else -1.0, overrun, self.sample_seq)
         for i, value in zip(self._ix_inputs, values, strict=True):
             st[i] = value
         self.pub_status.publish(self._st_packer.pack(st))
@@ -443,12 +578,18 @@ class FollowNode(Node):
         finally:
             self.controller.fail(reason)
 
-    def publish_zero(self, reason: str, log: bool = True) -> None:
-        """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C)."""
+    def publish_zero(self, reason: str, log: bool = True, release: bool = False) -> None:
+        """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C).
+
+        ``release``: the commander's last command (shutdown): the drive may take a new one.
+        """
         sec, nsec = divmod(self._clock.now().nanoseconds, 1_000_000_000)
         cmd = self._cmd_vals
         cmd[0], cmd[1], cmd[3], cmd[4], cmd[5] = sec, nsec, self.tick_index, 0.0, False
+        cmd[self._cix_answer] = self.sample_seq
+        cmd[self._cix_release] = release
         self.pub_cmd.publish(self._cmd_packer.pack(cmd))
+        cmd[self._cix_release] = False
         self.tick_index += 1
         if log:
             self.get_logger().info(f'zero velocity commanded: {reason}')
@@ -458,7 +599,9 @@ class FollowNode(Node):
                        flag: bool = False, text: str = '', velocity_mm_s: float = 0.0,
                        accel_mm_s2: float = 0.0) -> None:
         ev = FollowEvent()
-        sec, nsec = divmod(self._clock.now().nanoseconds, 1_000_000_000)
+        # stamped at the node clock; lock step: at the sim time of the tick it takes effect at
+        sec, nsec = divmod(self.tick_index * self.period_ns if self.lockstep
+                           else self._clock.now().nanoseconds, 1_000_000_000)
         ev.header.stamp.sec = sec
         ev.header.stamp.nanosec = nsec
         ev.tick = self.tick_index  # takes effect at the start of the next tick
@@ -545,6 +688,8 @@ class FollowNode(Node):
             'tick_exceptions': float(self.tick_exceptions),
             **{f'samples_{k}': float(v) for k, v in self.controller.counts.items()},
             'missed_feedback_samples': float(self.missed_feedback_samples),
+            'deadline_ticks': float(self.deadline_ticks),
+            'sample_period_ms': self.sample_period_s * 1e3,
         }
 
     def _publish_diagnostics(self) -> None:
@@ -601,10 +746,42 @@ def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
         while running[0]:
             spin(0.05)
         return
+    mono = time.monotonic_ns
+    if node.loop_mode == 'lockstep':
+        run_lockstep(node, spin, running)
+        return
+    if node.loop_mode == 'sync':
+        # One tick per new sample pair, as soon as both are here; at the latest one period
+        # plus sync_wait_s after the previous tick (a late or lost sample: the drive still gets
+        # its command, the core sees the held sample's age). spin_once returns after each
+        # callback, so the pair is checked as each sample arrives.
+        limit = period + node.sync_wait_ns
+        last = mono()
+
+        def tick_sync() -> None:
+            try:
+                node.tick_sync()
+            except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
+                node.on_tick_exception(exc)
+
+        while running[0]:
+            if node.new_gap and node.new_feedback:
+                last = mono()
+                tick_sync()
+                continue
+            remaining = last + limit - mono()
+            if remaining > 0:
+                spin(remaining * 1e-9)
+                continue
+            spin(0.0)  # late: serve what waited first
+            if not (node.new_gap and node.new_feedback) and remaining < -period:
+                spin(0.0)
+            last = mono()
+            tick_sync()
+        return
     # Deadline loop: serve callbacks until the next deadline, then tick. A tick later than
     # one period behind its deadline skips ahead instead of bursting to catch up.
     next_ns = time.monotonic_ns() + period
-    mono = time.monotonic_ns
     while running[0]:
         remaining = next_ns - mono()
         if remaining > 0:
@@ -619,6 +796,30 @@ def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
         next_ns += period
         if mono() - next_ns > period:
             next_ns = mono() + period
+
+
+def run_lockstep(node: FollowNode, spin, running: list[bool]) -> None:
+    """Lock step: tick once per ``sim/lockstep`` step, when its samples are here.
+
+    No own deadline: the sim's clock stands still until this node answers. The wall clock only
+    guards the sim: no step for ``lockstep_timeout_s`` after the first is a FAULT (the core's
+    stale limit cannot see it, its clock being the sim's).
+    """
+    timeout_ns = int(node.node_params.lockstep_timeout_s * 1e9)
+    while running[0]:
+        if node.step_ready():
+            try:
+                node.tick_step()
+            except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
+                node.on_tick_exception(exc)
+            continue
+        spin(0.05)
+        if (node._step_wall_ns and node._step is None
+                and time.monotonic_ns() - node._step_wall_ns > timeout_ns
+                and node.controller.state != FollowState.FAULT):
+            node.controller.fail(f'lock step: no step from the sim for '
+                                 f'{node.node_params.lockstep_timeout_s:g} s (wall clock)')
+            node.publish_zero('lock step: the sim stopped')
 
 
 def params_file_problem(args: list[str]) -> str:
@@ -675,7 +876,9 @@ def main(argv: list[str] | None = None) -> int:
         executor = EventsExecutor(context=node.context)
         executor.add_node(node)
         np_ = node.node_params
-        applied, warnings = apply_realtime(np_.thread_priority,
+        # no SCHED_FIFO in lock step: timing cannot change its result, and two FIFO processes
+        # answering each other as fast as they can starve every other process (the recorder)
+        applied, warnings = apply_realtime(0 if node.lockstep else np_.thread_priority,
                                            [np_.cpu] if np_.cpu >= 0 else [], np_.lock_memory)
         for text in warnings:
             node.get_logger().warning(text)
@@ -694,7 +897,7 @@ def main(argv: list[str] | None = None) -> int:
             # Zero velocity before anything goes down, however the loop ended.
             for i in range(3):
                 try:
-                    node.publish_zero(stop_reason[0], log=i == 0)
+                    node.publish_zero(stop_reason[0], log=i == 0, release=i == 2)
                 except Exception:  # noqa: BLE001 - the context may already be gone
                     break
         executor.shutdown()

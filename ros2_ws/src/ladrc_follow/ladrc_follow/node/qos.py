@@ -16,6 +16,11 @@
 * run/parameters, run/scenario (std_msgs/String): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST 1: the
   parameter set in force and the scenario text, for self-describing bags.
 * /diagnostics: the ROS default (RELIABLE, VOLATILE, KEEP_LAST 10).
+* Lock step (sim node and follow node with ``lockstep`` / ``loop: lockstep``, docs/follow-node.md):
+  the 2 kHz topics and ``sim/lockstep`` RELIABLE, VOLATILE; writers KEEP_LAST 1000 (half a
+  second of history for a recorder that falls behind: reliable repairs, nothing lost),
+  control inputs KEEP_LAST 1 (the sim publishes step k+1 only after the answer to step k, so
+  nothing is superseded).
 
 A driver for the real axis uses the same profiles (ladrc_sim's sim node defines the same ones
 on its side: the sim must not import this package).
@@ -39,3 +44,9 @@ RUN_TEXT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
+LOCKSTEP_HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.VOLATILE)
+LOCKSTEP_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)

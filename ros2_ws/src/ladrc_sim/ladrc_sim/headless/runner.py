@@ -92,6 +92,9 @@ class RunResult:
     metrics: Metrics
     internals: dict[str, np.ndarray] = field(default_factory=dict)
     wall_s: float = 0.0
+    # velocity of the (thin) sheet surface per tick (sim/truth's plate_velocity_mm_s); 0 without
+    # a plate
+    plate_velocity_mm_s: np.ndarray | None = None
 
     @property
     def realtime_x(self) -> float:
@@ -204,6 +207,7 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
     r_sheet = [0.0] * n
     r_cmd = [0.0] * n
     r_target = [math.nan] * n
+    r_pv = [0.0] * n
     rec_int = record_internals and callable(getattr(controller, 'internals', None))
     internals: dict[str, list] = {}
 
@@ -328,6 +332,7 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
         r_sheet[i] = z
         r_cmd[i] = u
         r_target[i] = target_rec
+        r_pv[i] = p_v
         drive_ok = enabled and not fault and not (c_quick_stop is not None and c_quick_stop())
         if c_internals is not None:
             for key, val in c_internals().items():
@@ -385,7 +390,7 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
                      encoder_mm=np.asarray(r_enc), nozzle_mm=noz_a,
                      sheet_mm=sheet_a, coverage=cov, command_mm_s=cmd_a,
                      target_gap_mm=target_a, collision=coll_a, metrics=metrics,
-                     internals=int_a, wall_s=wall)
+                     internals=int_a, wall_s=wall, plate_velocity_mm_s=np.asarray(r_pv))
 
 
 def summary(result: RunResult) -> Mapping[str, Any]:

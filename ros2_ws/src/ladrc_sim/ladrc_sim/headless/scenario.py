@@ -75,6 +75,8 @@ SIM_EVENTS: dict[str, dict[str, tuple]] = {
     'gas': {'on': (bool, REQUIRED, None, None)},
 }
 EVENTS = {**COMMANDS, **SIM_EVENTS}
+# AxisFeedback.fault_reason while a 'drive' event holds the drive faulted (sim node, bags)
+DRIVE_FAULT_REASON = 'drive fault (scenario event)'
 
 
 class ScenarioError(ValueError):

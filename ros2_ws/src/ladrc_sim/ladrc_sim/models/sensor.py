@@ -95,6 +95,19 @@ def oscillator_hz(reading_mm, params: SensorParams):
     return params.osc_f0_hz / np.sqrt(1.0 + c_s / params.parasitic_pf)
 
 
+def oscillator_hz_scalar(reading_mm: float, params: SensorParams) -> float:
+    """:func:`oscillator_hz` of one reading, in plain floats (the sim node's 2 kHz path).
+
+    The same operations in the same order, so the value equals the array form bit for bit
+    (a lock-step run's samples equal the headless bag's); NaN for a reading that is not finite.
+    """
+    if not math.isfinite(reading_mm):
+        return math.nan
+    area = math.pi * 0.25 * params.nozzle_diameter_mm ** 2
+    c_s = EPS0_PF_PER_MM * area / max(reading_mm, 1e-3)
+    return params.osc_f0_hz / math.sqrt(1.0 + c_s / params.parasitic_pf)
+
+
 def band_limited_noise(rng: np.random.Generator, n: int, std: float, cutoff_hz: float,
                        h_s: float) -> np.ndarray:
     """Gaussian noise of standard deviation ``std``, low-passed at ``cutoff_hz`` if > 0."""

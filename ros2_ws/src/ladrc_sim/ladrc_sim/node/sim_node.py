@@ -10,6 +10,17 @@ Like a drive, it stops the axis when commands stop: no command for longer than
 ``watchdog_timeout_s`` (default 5 ms, counted in the drive's own cycles) → quick stop (the axis
 brakes at its maximum deceleration, not through its velocity lag) and a drive fault with a
 readable reason, until commands are back for ``watchdog_recover_s``.
+
+A sample is published only when the runner has a fresh one: during a ``sensor_dropout`` or
+``encoder_dropout`` nothing is sent, as a driver sends nothing (seq counts published samples).
+
+Lock step (``lockstep: true``, docs/follow-node.md "Lock step"): step k publishes its samples
+and ``sim/lockstep`` k, stamped with the sim's time k·h_s, and steps the plant only when the
+command answering k (``sample_seq`` k) has arrived; a scenario's follow command is answered by
+the controller before the step's samples go out. Reliable traffic; no drive watchdog (the plant
+cannot move without the answer); no answer within ``lockstep_timeout_s`` of wall time ends the
+run with one line and exit code 3. It is the headless runner's convention: command k acts at
+step k, no transport delay (a live run acts one tick later).
 """
 
 from __future__ import annotations
@@ -23,7 +34,7 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, SimTruth, VelocityCommand
+from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import (
     GradientFollow,
     HeightCompensation,
@@ -42,8 +53,13 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from ..headless.runner import run
-from ..headless.scenario import ScenarioError, list_scenarios, load_scenario
-from ..models.sensor import EPS0_PF_PER_MM
+from ..headless.scenario import (
+    DRIVE_FAULT_REASON,
+    ScenarioError,
+    list_scenarios,
+    load_scenario,
+)
+from ..models.sensor import oscillator_hz_scalar
 from .realtime import apply_realtime
 
 # The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
@@ -58,6 +74,13 @@ RUN_TEXT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                            reliability=ReliabilityPolicy.BEST_EFFORT,
                            durability=DurabilityPolicy.VOLATILE)
+# lock step: reliable (ladrc_follow/node/qos.py, "Lock step")
+LOCKSTEP_HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.VOLATILE)
+LOCKSTEP_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
 
 SERVICES = {
     'start_follow': (StartFollow, 'follow/start'),
@@ -75,6 +98,10 @@ REQUEST_FIELDS = {'on': 'machining'}
 
 class StopSimulation(Exception):
     """Raised inside the runner's loop to end the run early (Ctrl-C)."""
+
+
+class LockstepAbort(Exception):
+    """Lock step: the controller did not answer within ``lockstep_timeout_s`` (one line)."""
 
 
 class DriveBridge:
@@ -106,6 +133,12 @@ class DriveBridge:
         self._prev_t = math.nan
         self.periods_us: list[float] = []
         self._last_tick_ns = 0
+        # samples published so far (seq of the next one), the step counter
+        self.gap_seq = 0
+        self.enc_seq = 0
+        self.lockstep = node.lockstep
+        self.lockstep_timeout_ns = int(node.lockstep_timeout_s * 1e9)
+        self._answer: tuple[float, bool] | None = None  # lock step: the command answering seq
 
     # ---- the runner's hooks -------------------------------------------------------------
     def truth(self, t_s: float, true_gap_mm: float, sheet_mm: float, nozzle_mm: float,
@@ -115,12 +148,28 @@ class DriveBridge:
                              t_s)
 
     def command(self, name: str, **kwargs: Any) -> None:
-        """Send a scenario follow command to the controller's service (asynchronously)."""
-        self.node.send_follow_command(name, kwargs)
+        """Send a scenario follow command to the controller's service.
 
-    def step(self, tick) -> float:
-        """Wait for this tick's deadline, publish its samples, return the latest command."""
-        node = self.node
+        Live: asynchronously. Lock step: the answer is awaited, so the command takes effect at
+        the tick of this step, as in the headless runner.
+        """
+        future = self.node.send_follow_command(name, kwargs)
+        if self.lockstep:
+            self._await(future.done, f'no answer to the {name} service call')
+
+    def _await(self, condition, what: str) -> None:
+        """Lock step: serve callbacks until ``condition()``; abort after the wall-clock wait."""
+        limit = time.monotonic_ns() + self.lockstep_timeout_ns
+        spin_once = self.executor.spin_once
+        while not condition():
+            if not self.running:
+                raise StopSimulation()
+            if time.monotonic_ns() > limit:
+                raise LockstepAbort(f'lock step aborted at step {self.seq}: {what} within '
+                                    f'{self.lockstep_timeout_ns * 1e-9:g} s (wall clock)')
+            spin_once(timeout_sec=0.05)
+
+    def _start(self) -> int:
         now = time.monotonic_ns()
         if self.t_start_ns == 0:
             # The runner has allocated its per-run series: move everything alive now out of
@@ -129,6 +178,39 @@ class DriveBridge:
             gc.freeze()
             now = time.monotonic_ns()
             self.t_start_ns = now
+        return now
+
+    def step_lockstep(self, tick) -> float:
+        """Lock step: publish step k, wait for the command answering k, return it."""
+        now = self._start()
+        if self.realtime:  # paced: never faster than real time
+            deadline = self.t_start_ns + self.seq * self.period_ns
+            while now < deadline:
+                self.executor.spin_once(timeout_sec=(deadline - now) * 1e-9)
+                now = time.monotonic_ns()
+        if not self.running:
+            raise StopSimulation()
+        if self._last_tick_ns:
+            self.periods_us.append((now - self._last_tick_ns) * 1e-3)
+        self._last_tick_ns = now
+        self._answer = None
+        self.node.publish_samples(self.seq, tick, bool(tick.drive_fault),
+                                  DRIVE_FAULT_REASON if tick.drive_fault else '',
+                                  self.truth_values, stamp_ns=self.seq * self.period_ns)
+        self._await(lambda: self._answer is not None,
+                    f'no velocity command answering step {self.seq}')
+        velocity, enable = self._answer
+        self.seq += 1
+        if tick.drive_fault or not tick.drive_enabled or not enable:
+            return 0.0
+        return velocity
+
+    def step(self, tick) -> float:
+        """Wait for this tick's deadline, publish its samples, return the latest command."""
+        if self.lockstep:
+            return self.step_lockstep(tick)
+        node = self.node
+        now = self._start()
         deadline = self.t_start_ns + self.seq * self.period_ns
         if self.realtime and now < deadline:
             while now < deadline:
@@ -154,7 +236,7 @@ class DriveBridge:
         # a new command (as a fieldbus drive does), so a stall of this process is not taken
         # for a silent controller.
         fault = bool(tick.drive_fault)
-        reason = 'drive fault (scenario event)' if fault else ''
+        reason = DRIVE_FAULT_REASON if fault else ''
         if self.last_cmd_ns:
             self.ticks_since_cmd += 1
             if self.ticks_since_cmd > self.watchdog_ticks:
@@ -186,7 +268,12 @@ class DriveBridge:
         return bool(self.fault_reason)
 
     def on_command(self, msg: VelocityCommand) -> None:
-        """Velocity command callback: keep the latest (zero-order hold)."""
+        """Velocity command callback: keep the latest (zero-order hold).
+
+        Lock step: the command answering the step being waited for is its answer.
+        """
+        if self.lockstep and msg.sample_seq == self.seq and self._answer is None:
+            self._answer = (msg.velocity_mm_s, msg.enable)
         self.cmd_velocity = msg.velocity_mm_s
         self.cmd_enable = msg.enable
         self.cmd_seq = msg.seq
@@ -218,6 +305,13 @@ class SimNode(Node):
         self.declare_parameter('thread_priority', 50)
         self.declare_parameter('cpu', -1)
         self.declare_parameter('lock_memory', True)
+        # lock step (module docstring): the sim waits for each answer, its clock is the step
+        self.declare_parameter('lockstep', False)
+        self.declare_parameter('lockstep_timeout_s', 10.0)
+        self.lockstep = bool(self.get_parameter('lockstep').value)
+        self.lockstep_timeout_s = float(self.get_parameter('lockstep_timeout_s').value)
+        if not self.lockstep_timeout_s > 0:
+            raise ValueError('lockstep_timeout_s must be > 0')
         self.scenario = load_scenario(self.get_parameter('scenario').value)
         self.h_s = 0.0005
         self.watchdog_timeout_s = float(self.get_parameter('watchdog_timeout_s').value)
@@ -226,16 +320,14 @@ class SimNode(Node):
             raise ValueError('watchdog_timeout_s must be > 0')
         self.frame_id = self.get_parameter('frame_id').value
         self.raw_only = bool(self.get_parameter('raw_only').value)
-        # the sensor model's LC oscillator (models/sensor.py oscillator_hz), scalar:
-        # f = f0 / sqrt(1 + k / r), k = eps0 A / C_p
-        sp = self.scenario.sensor
-        self._osc_f0 = float(sp.osc_f0_hz)
-        self._osc_k = (EPS0_PF_PER_MM * math.pi * 0.25 * sp.nozzle_diameter_mm ** 2
-                       / sp.parasitic_pf)
+        high_rate = LOCKSTEP_HIGH_RATE if self.lockstep else HIGH_RATE
         self.pub_gap = self.create_publisher(CapacitiveHeight, 'axis/capacitive_height',
-                                             HIGH_RATE)
-        self.pub_fb = self.create_publisher(AxisFeedback, 'axis/feedback', HIGH_RATE)
-        self.pub_truth = self.create_publisher(SimTruth, 'sim/truth', HIGH_RATE)
+                                             high_rate)
+        self.pub_fb = self.create_publisher(AxisFeedback, 'axis/feedback', high_rate)
+        self.pub_truth = self.create_publisher(SimTruth, 'sim/truth', high_rate)
+        self.pub_step = (self.create_publisher(LockStep, 'sim/lockstep', LOCKSTEP_INPUT)
+                         if self.lockstep else None)
+        self._step_msg = LockStep()
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # The scenario text, latched: a recorder puts it into the bag (self-describing runs).
         self.pub_scenario = self.create_publisher(String, 'run/scenario', RUN_TEXT)
@@ -265,11 +357,12 @@ class SimNode(Node):
     def attach(self, bridge: DriveBridge) -> None:
         """Wire the bridge's command callback."""
         self.bridge = bridge
-        self.create_subscription(VelocityCommand, 'axis/velocity_command', bridge.on_command,
-                                 CONTROL_INPUT)
+        self.sub_cmd = self.create_subscription(
+            VelocityCommand, 'axis/velocity_command', bridge.on_command,
+            LOCKSTEP_INPUT if self.lockstep else CONTROL_INPUT)
 
-    def send_follow_command(self, name: str, args: dict[str, Any]) -> None:
-        """Call the controller's service for a scenario follow command."""
+    def send_follow_command(self, name: str, args: dict[str, Any]):
+        """Call the controller's service for a scenario follow command; return the future."""
         srv, topic = SERVICES[name]
         request = srv.Request()
         for key, value in args.items():
@@ -277,43 +370,61 @@ class SimNode(Node):
                                                                         .get(key, key)))(value))
         future = self.follow_clients[name].call_async(request)
         future.add_done_callback(lambda f, n=name: self._command_done(n, f))
+        return future
 
     def _command_done(self, name: str, future) -> None:
         result = future.result()
         if result is not None and not result.accepted:
             self.get_logger().warning(f'{name} rejected by the controller: {result.message}')
 
-    def publish_samples(self, seq: int, tick, fault: bool, reason: str, truth: tuple) -> None:
-        """Publish one tick's capacitive height, axis feedback and truth."""
+    def publish_samples(self, seq: int, tick, fault: bool, reason: str, truth: tuple,
+                        stamp_ns: int | None = None) -> None:
+        """Publish one step's capacitive height and axis feedback (when fresh) and truth.
+
+        A sample is fresh when the runner took it at this step (its stamp is the step's
+        time); a held one (dropout) is not sent. ``seq`` is the step; each topic's own seq
+        counts its published samples. Lock step: then ``sim/lockstep``, all stamped
+        ``stamp_ns`` (the sim's time).
+        """
         # header stamps: the node clock (ROS time: system clock, or /clock with use_sim_time)
-        sec, nsec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+        if stamp_ns is None:
+            stamp_ns = self.get_clock().now().nanoseconds
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        bridge = self.bridge
+        gap_fresh = tick.gap_stamp_s == tick.t_s
+        enc_fresh = tick.encoder_stamp_s == tick.t_s
         gap = self._gap
         gap.header.stamp.sec = sec
         gap.header.stamp.nanosec = nsec
-        gap.seq = seq
+        if gap_fresh:
+            gap.seq = bridge.gap_seq
+            bridge.gap_seq += 1
         reading = float(tick.gap_mm)
         gap.gap_mm = math.nan if self.raw_only else reading
         gap.valid = bool(tick.gap_valid)
         gap.status = int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1))
         # the raw value behind the reading: the sensor model's oscillator (docs/simulator.md),
         # falls as the capacitance rises (as the nozzle approaches)
-        gap.raw_hz = (self._osc_f0 / math.sqrt(1.0 + self._osc_k / max(reading, 1e-3))
-                      if math.isfinite(reading) else math.nan)
-        self.pub_gap.publish(gap)
+        gap.raw_hz = oscillator_hz_scalar(reading, self.scenario.sensor)
+        if gap_fresh:
+            self.pub_gap.publish(gap)
         fb = self._fb
         fb.header.stamp.sec = sec
         fb.header.stamp.nanosec = nsec
-        fb.seq = seq
+        if enc_fresh:
+            fb.seq = bridge.enc_seq
+            bridge.enc_seq += 1
         fb.position_mm = float(tick.encoder_mm)
-        bridge = self.bridge
         dt = tick.t_s - bridge._prev_t
-        fb.velocity_mm_s = ((tick.encoder_mm - bridge._prev_enc) / dt
+        # differentiated over the drive's cycle, as the headless bag writer does
+        fb.velocity_mm_s = ((tick.encoder_mm - bridge._prev_enc) / self.h_s
                             if dt > 0 and math.isfinite(bridge._prev_enc) else 0.0)
         bridge._prev_enc, bridge._prev_t = tick.encoder_mm, tick.t_s
         fb.drive_enabled = bool(tick.drive_enabled)
         fb.drive_fault = fault
         fb.fault_reason = reason
-        self.pub_fb.publish(fb)
+        if enc_fresh:
+            self.pub_fb.publish(fb)
         tr = self._truth
         tr.header.stamp.sec = sec
         tr.header.stamp.nanosec = nsec
@@ -321,17 +432,34 @@ class SimNode(Node):
         (tr.true_gap_mm, tr.sheet_mm, tr.nozzle_mm, tr.edge_coverage,
          tr.plate_velocity_mm_s) = (float(v) for v in truth[:5])
         tr.collision = bool(truth[0] <= 0.0)
+        tr.x_mm = tr.y_mm = math.nan
         self.pub_truth.publish(tr)
+        if self.pub_step is not None:
+            st = self._step_msg
+            st.header.stamp.sec = sec
+            st.header.stamp.nanosec = nsec
+            st.step = seq
+            st.gap_seq, st.gap_fresh = gap.seq, gap_fresh
+            st.encoder_seq, st.encoder_fresh = fb.seq, enc_fresh
+            self.pub_step.publish(st)
 
     def wait_for_controller(self, executor, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""
         needed = {e.name for e in self.scenario.timeline if e.name in SERVICES}
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if all(self.follow_clients[n].service_is_ready() for n in needed):
+            if all(self.follow_clients[n].service_is_ready() for n in needed) and (
+                    not self.lockstep or self.lockstep_matched()):
                 return True
             executor.spin_once(timeout_sec=0.05)
-        return not needed
+        return not needed and not self.lockstep
+
+    def lockstep_matched(self) -> bool:
+        """Lock step: a controller reads the samples and the steps, and commands."""
+        return (self.pub_step.get_subscription_count() > 0
+                and self.pub_gap.get_subscription_count() > 0
+                and self.pub_fb.get_subscription_count() > 0
+                and self.count_publishers(self.sub_cmd.topic_name) > 0)
 
     def wait_for_recorder(self, executor, timeout_s: float) -> bool:
         """Wait until something (the recorder) subscribes to sim/truth."""
@@ -376,7 +504,9 @@ def main(argv: list[str] | None = None) -> int:
         executor = EventsExecutor(context=node.context)
         executor.add_node(node)
         cpu = int(node.get_parameter('cpu').value)
-        _, warnings = apply_realtime(int(node.get_parameter('thread_priority').value),
+        # lock step: no SCHED_FIFO (ladrc_follow's follow_node.main says why)
+        _, warnings = apply_realtime(0 if node.lockstep
+                                     else int(node.get_parameter('thread_priority').value),
                                      [cpu] if cpu >= 0 else [],
                                      bool(node.get_parameter('lock_memory').value))
         for text in warnings:
@@ -389,8 +519,15 @@ def main(argv: list[str] | None = None) -> int:
 
         signal.signal(signal.SIGINT, _stop)
         signal.signal(signal.SIGTERM, _stop)
-        if not node.wait_for_controller(executor,
-                                        float(node.get_parameter('wait_for_controller_s').value)):
+        wait_s = float(node.get_parameter('wait_for_controller_s').value)
+        if not node.wait_for_controller(executor, max(wait_s, node.lockstep_timeout_s)
+                                        if node.lockstep else wait_s):
+            if node.lockstep:
+                print(f'sim_node: lock step: no controller in lock step within '
+                      f'{max(wait_s, node.lockstep_timeout_s):g} s (a follow node with loop '
+                      "'lockstep' subscribing to sim/lockstep and commanding the axis)",
+                      file=sys.stderr)
+                return 3
             node.get_logger().warning('controller services not found: playing the scenario '
                                       'anyway (its follow commands may be lost)')
         wait_rec = float(node.get_parameter('wait_for_recorder_s').value)
@@ -405,6 +542,9 @@ def main(argv: list[str] | None = None) -> int:
             node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
         except StopSimulation:
             pass
+        except LockstepAbort as exc:
+            print(f'sim_node: {exc}', file=sys.stderr)
+            return 3
         if bridge.running and not node.get_parameter('exit_at_end').value:
             while bridge.running:
                 executor.spin_once(timeout_sec=0.1)

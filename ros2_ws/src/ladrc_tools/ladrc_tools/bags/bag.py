@@ -403,23 +403,27 @@ _ENCAP = 4  # CDR encapsulation header (little endian, 0x0001); alignment counts
 
 
 class RowPacker:
-    """Serialize many messages of one type at once with numpy (all strings empty).
+    """Serialize many messages of one type at once with numpy (strings empty or given).
 
-    The CDR layout of a message whose strings are all empty is fixed, so a structured numpy
-    array with the CDR offsets *is* the serialized messages. Built from the typestore's field
-    definitions and checked once against ``serialize_cdr`` (raises if rosbags disagrees).
+    The CDR layout of a message whose strings are all empty, or each one the same text in every
+    row (``strings``: flattened field -> text), is fixed, so a structured numpy array with the
+    CDR offsets *is* the serialized messages. Built from the typestore's field definitions and
+    checked once against ``serialize_cdr`` (raises if rosbags disagrees).
     """
 
-    def __init__(self, msgtype: str, typestore: Any = None) -> None:
+    def __init__(self, msgtype: str, typestore: Any = None,
+                 strings: Mapping[str, str] | None = None) -> None:
         self.store = typestore or ladrc_typestore()
         self.msgtype = msgtype
+        self.texts = {k: v.encode('utf-8') for k, v in (strings or {}).items()}
         names: list[str] = []
         formats: list[str] = []
         offsets: list[int] = []
         self.strings: list[str] = []
         end = self._layout(msgtype, '', 0, names, formats, offsets)
         self.fields = [n for n in names if not n.startswith('~')]
-        self._order = [n[5:] if n.startswith('~len.') else n for n in names]
+        self._order = [n[5:] if n.startswith('~len.') else n for n in names
+                       if not n.startswith('~str.')]
         self.dtype = np.dtype({'names': ['~encap'] + names, 'formats': ['<u4'] + formats,
                                'offsets': [0] + [o + _ENCAP for o in offsets],
                                'itemsize': end + _ENCAP})
@@ -440,7 +444,12 @@ class RowPacker:
                 formats.append('<u4')
                 offsets.append(off)
                 self.strings.append(key)
-                off += 5  # uint32 length 1, then the terminating NUL
+                text = self.texts.get(key, b'')
+                if text:
+                    names.append(f'~str.{key}')
+                    formats.append(f'S{len(text)}')
+                    offsets.append(off + 4)
+                off += 5 + len(text)  # uint32 length, the text, then the terminating NUL
             elif kind.name == 'BASE' and arg[0] in _BASE:
                 fmt = _BASE[arg[0]]
                 size = np.dtype(fmt).itemsize
@@ -453,13 +462,13 @@ class RowPacker:
                 raise BagError(f'{msgtype}.{fname}: arrays have no fixed layout')
         return off
 
-    def _default(self, msgtype: str) -> Any:
+    def _default(self, msgtype: str, prefix: str = '') -> Any:
         kwargs = {}
         for fname, (kind, arg) in self.store.fielddefs[msgtype][1]:
             if kind.name == 'NAME':
-                kwargs[fname] = self._default(arg)
+                kwargs[fname] = self._default(arg, f'{prefix}{fname}.')
             elif arg[0] == 'string':
-                kwargs[fname] = ''
+                kwargs[fname] = self.texts.get(f'{prefix}{fname}', b'').decode('utf-8')
             elif arg[0] == 'bool':
                 kwargs[fname] = False
             elif arg[0].startswith('float'):
@@ -476,7 +485,10 @@ class RowPacker:
         arr = np.zeros(n, dtype=self.dtype)
         arr['~encap'] = 0x00000100  # bytes 00 01 00 00: CDR little endian
         for key in self.strings:
-            arr[f'~len.{key}'] = 1
+            text = self.texts.get(key, b'')
+            arr[f'~len.{key}'] = len(text) + 1
+            if text:
+                arr[f'~str.{key}'] = text
         cols = dict(columns)
         if 'stamp_s' in cols:
             sec, nsec = stamp_parts(np.asarray(cols.pop('stamp_s'), dtype=float))
@@ -542,7 +554,9 @@ _EVENT_VALUE = {'start_follow': 'target_gap_mm', 'set_target': 'target_gap_mm',
                 'height_compensation': 'offset_mm', 'gradient_follow': 'target_gap_mm',
                 'target_wave': 'amp_mm'}
 STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION = 0, 1, 2
-STATE_IDLE, STATE_FAULT = 0, 5
+STATE_IDLE, STATE_PREINTERPOLATE, STATE_LADRC, STATE_FAULT = 0, 2, 4, 5
+FRAME_ID = 'z_axis'  # the sim node's frame_id (its parameter's default)
+COMMANDER = '/ladrc_follow'  # the follow node's fully qualified name (VelocityCommand.commander)
 
 
 def _fresh(n: int, h_s: float, spans: list[tuple[float, float]]) -> np.ndarray:
@@ -567,6 +581,26 @@ def _drive_schedule(n: int, h_s: float, timeline: Sequence[Any]) -> tuple[np.nda
 def _last_seq(fresh: np.ndarray) -> np.ndarray:
     """Seq (0-based count of fresh samples) of the sample held at each tick."""
     return np.maximum(np.cumsum(fresh) - 1, 0).astype(np.uint64)
+
+
+def _pack_by_text(packer: RowPacker, n: int, cols: Mapping[str, Any], key: str,
+                  texts: Any) -> list[bytes]:
+    """Pack ``n`` rows whose string field ``key`` is ``texts[i]`` (one packer per text)."""
+    rows = packer.pack(n, cols)
+    if texts is None:
+        return rows
+    texts = np.asarray(texts, dtype=object)
+    for text in set(texts.tolist()) - {'', None}:
+        idx = np.flatnonzero(texts == text)
+        sub = {k: (v[idx] if isinstance(v, np.ndarray) and v.shape == (n,) else v)
+               for k, v in cols.items()}
+        strings = {k: v.decode('utf-8') for k, v in packer.texts.items()}
+        strings[key] = str(text)
+        for i, row in zip(idx.tolist(), RowPacker(packer.msgtype, packer.store,
+                                                  strings).pack(idx.size, sub),
+                          strict=True):
+            rows[i] = row
+    return rows
 
 
 def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
@@ -612,28 +646,39 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     status_code = np.where(valid, STATUS_OK,
                            np.where(collision, STATUS_COLLISION, STATUS_OUT_OF_RANGE))
     enc_vel = np.diff(encoder, prepend=encoder[:1]) / h_s  # what a driver differentiates
+    # the raw value behind each reading, as the sim node sends it (models/sensor.py)
+    raw_hz = result.raw_hz() if callable(getattr(result, 'raw_hz', None)) else np.nan
+    ticks = np.arange(n, dtype=np.uint64)
 
-    cap_rows = RowPacker('ladrc_msgs/msg/CapacitiveHeight', store).pack(n, {
-        'stamp_s': t, 'seq': gap_seq, 'gap_mm': reading, 'raw_hz': np.nan, 'valid': valid,
-        'status': status_code})
-    fb_rows = RowPacker('ladrc_msgs/msg/AxisFeedback', store).pack(n, {
-        'stamp_s': t, 'seq': enc_seq, 'position_mm': encoder,
-        'velocity_mm_s': np.nan_to_num(enc_vel), 'drive_enabled': enabled,
-        'drive_fault': fault})
+    frame = {'header.frame_id': FRAME_ID}
+    cap_rows = RowPacker('ladrc_msgs/msg/CapacitiveHeight', store, frame).pack(n, {
+        'stamp_s': t, 'seq': gap_seq, 'gap_mm': reading,
+        'raw_hz': raw_hz, 'valid': valid, 'status': status_code})
+    from ladrc_sim.headless.scenario import DRIVE_FAULT_REASON
+
+    fb_rows = _pack_by_text(
+        RowPacker('ladrc_msgs/msg/AxisFeedback', store, frame), n, {
+            'stamp_s': t, 'seq': enc_seq, 'position_mm': encoder,
+            'velocity_mm_s': np.nan_to_num(enc_vel), 'drive_enabled': enabled,
+            'drive_fault': fault}, 'fault_reason', np.where(fault, DRIVE_FAULT_REASON, ''))
     state = internals.get('state')
     if 'command_enable' in internals:  # a controller that says it (the excitation player)
         enable = np.nan_to_num(internals['command_enable']).astype(bool)
     elif state is not None:
+        # FollowController.enable: approaching or following, or a command not yet zero
+        # (a retract, a ramp down)
         state = np.nan_to_num(state).astype(np.uint8)
-        enable = (state != STATE_IDLE) & (state != STATE_FAULT)
+        enable = ((state >= STATE_PREINTERPOLATE) & (state <= STATE_LADRC)) | (command != 0.0)
     else:
         enable = np.isfinite(target)
-    cmd_rows = RowPacker('ladrc_msgs/msg/VelocityCommand', store).pack(n, {
-        'stamp_s': t, 'seq': np.arange(n, dtype=np.uint64), 'velocity_mm_s': command,
-        'enable': enable})
+    # the runner's convention is lock step's: command k answers step k (docs/follow-node.md)
+    cmd_rows = RowPacker('ladrc_msgs/msg/VelocityCommand', store,
+                         {'commander': COMMANDER}).pack(n, {
+        'stamp_s': t, 'seq': ticks, 'velocity_mm_s': command, 'enable': enable,
+        'sample_seq': ticks})
     status_packer = RowPacker('ladrc_msgs/msg/FollowStatus', store)
     status_cols: dict[str, Any] = {
-        'stamp_s': t, 'tick': np.arange(n, dtype=np.uint64), 't_s': t,
+        'stamp_s': t, 'tick': ticks, 't_s': t, 'sample_seq': ticks, 'feed_override_request': 1.0,
         'target_gap_mm': target, 'gap_seq': gap_seq, 'gap_mm': reading, 'gap_valid': valid,
         'gap_status': status_code,
         'gap_stamp_s': gap_stamp, 'encoder_seq': enc_seq, 'encoder_mm': encoder,
@@ -652,12 +697,15 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
             kind = status_packer.dtype[key].kind
             status_cols[key] = (values if kind == 'f'
                                 else np.nan_to_num(values).astype(status_packer.dtype[key]))
-    status_rows = status_packer.pack(n, status_cols)
-    truth_rows = RowPacker('ladrc_msgs/msg/SimTruth', store).pack(n, {
-        'stamp_s': t, 'seq': gap_seq, 'true_gap_mm': result.true_gap_mm,
-        'sheet_mm': result.sheet_mm, 'nozzle_mm': result.nozzle_mm,
-        'edge_coverage': result.coverage, 'plate_velocity_mm_s': np.nan,
-        'collision': collision})
+    status_rows = _pack_by_text(status_packer, n, status_cols, 'fault_reason',
+                                internals.get('fault_reason'))
+    plate_v = getattr(result, 'plate_velocity_mm_s', None)
+    truth_rows = RowPacker('ladrc_msgs/msg/SimTruth', store, frame).pack(n, {
+        'stamp_s': t, 'seq': ticks,
+        'true_gap_mm': result.true_gap_mm, 'sheet_mm': result.sheet_mm,
+        'nozzle_mm': result.nozzle_mm, 'edge_coverage': result.coverage,
+        'plate_velocity_mm_s': np.nan if plate_v is None else plate_v, 'collision': collision,
+        'x_mm': np.nan, 'y_mm': np.nan})
 
     # events: PARAMETERS at tick 0, then the scenario's commands at the runner's ticks
     Event = store.types['ladrc_msgs/msg/FollowEvent']

@@ -48,23 +48,36 @@ def default_params_file() -> str:
     return str(Path(__file__).resolve().parents[2] / 'config' / 'follow.yaml')
 
 
+LIVE_LOOPS = ('sync', 'deadline', 'timer')
+"""The follow node's loops against a drive (``lockstep`` is the sim node's alone)."""
+
+
 def node_specs(scenario: str, params_file: str | None = None, bag: str | None = None,
-               loop: str = 'deadline', storage: str = 'mcap') -> list[NodeSpec]:
-    """Return the nodes of a simulated run: the one configuration bringup and launch share."""
+               loop: str = 'sync', storage: str = 'mcap', lockstep: bool = False,
+               paced: bool = True) -> list[NodeSpec]:
+    """Return the nodes of a simulated run: the one configuration bringup and launch share.
+
+    ``lockstep``: the sim node and the follow node in lock step (docs/follow-node.md), the
+    recorder reliable; ``paced``: lock step no faster than real time (else as fast as the
+    two processes go).
+    """
     specs = []
     if bag:
-        specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder',
-                              parameters={'output': bag, 'storage': storage,
-                                          'scenario': scenario}))
+        rec: dict[str, object] = {'output': bag, 'storage': storage, 'scenario': scenario}
+        if lockstep:
+            rec['reliable'] = True
+        specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder', parameters=rec))
     # The product's defaults (stale input 10 ms, drive watchdog 5 ms) in simulated runs too:
     # robustness against a loaded machine comes from the loop's real-time settings
     # (SCHED_FIFO, locked memory: node/realtime.py), not from wider timeouts.
     # No CPU pinning: on this 2-core class, pinning the two loops to a CPU each starved the
     # simulator's publishing under load (docs/safety.md).
     specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',
-                          parameters={'loop': loop},
+                          parameters={'loop': 'lockstep' if lockstep else loop},
                           params_file=params_file or default_params_file()))
-    sim = {'scenario': scenario, 'exit_at_end': True}
+    sim: dict[str, object] = {'scenario': scenario, 'exit_at_end': True}
+    if lockstep:
+        sim.update({'lockstep': True, 'realtime': bool(paced)})
     if bag:  # the bag holds the run from its first tick
         sim.update({'wait_for_recorder_s': 10.0, 'start_delay_s': 1.0})
     specs.append(NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters=sim))
@@ -72,13 +85,17 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
 
 
 def axis_node_specs(params_file: str | None = None, bag: str | None = None,
-                    loop: str = 'deadline', storage: str = 'mcap',
+                    loop: str = 'sync', storage: str = 'mcap',
                     hardware_id: str = 'z_axis') -> list[NodeSpec]:
     """Return the nodes of a run on a real axis: the follow node (+ recorder), no simulator.
 
     The axis' driver node is the integrator's: it publishes ``axis/capacitive_height`` and
-    ``axis/feedback`` and executes ``axis/velocity_command`` (docs/interfaces.md).
+    ``axis/feedback`` and executes ``axis/velocity_command`` (docs/interfaces.md). Lock step
+    is refused: it is the sim node's (a drive does not wait for its controller).
     """
+    if loop not in LIVE_LOOPS:
+        raise ValueError(f"loop {loop!r} is not offered against a real axis (one of "
+                         f"{', '.join(LIVE_LOOPS)}; 'lockstep' needs the sim node)")
     specs = []
     if bag:
         specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder',
@@ -96,7 +113,10 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
                'empty: the shipped config/follow.yaml'),
     'bag': ('', 'record every contract topic into this bag folder (must not exist); empty: '
             'no recorder'),
-    'loop': ('deadline', "follow node tick source: 'deadline' or 'timer' (docs/follow-node.md)"),
+    'loop': ('sync', "follow node tick source: 'sync', 'deadline' or 'timer' "
+             '(docs/follow-node.md)'),
+    'lockstep': ('false', 'simulated runs only: the sim node and the follow node in lock step '
+                 '(deterministic, equal to the headless runner; docs/follow-node.md)'),
     'storage': ('mcap', "bag storage: 'mcap' or 'sqlite3'"),
     'hardware_id': ('z_axis', 'hardware_id of the follow node on /diagnostics'),
 }
@@ -212,7 +232,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')
     ap.add_argument('--bag', default=None, help='record a bag to this folder (must not exist)')
     ap.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
-    ap.add_argument('--loop', default='deadline', choices=['deadline', 'timer'])
+    ap.add_argument('--loop', default='sync', choices=list(LIVE_LOOPS))
+    ap.add_argument('--lockstep', action='store_true',
+                    help='sim node and follow node in lock step: deterministic, equal to the '
+                    'headless runner (docs/follow-node.md)')
+    ap.add_argument('--unpaced', action='store_true',
+                    help='lock step as fast as the processes go (default: real time at most)')
     ap.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID [random 1..101]')
     ap.add_argument('--timeout', type=float, default=600.0,
                     help='stop after this many seconds even if the scenario has not ended')
@@ -222,7 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.bag and Path(args.bag).exists():
         print(f'bringup: {args.bag} exists; choose a new bag folder', file=sys.stderr)
         return 2
-    specs = node_specs(args.scenario, args.params, args.bag, args.loop, args.storage)
+    specs = node_specs(args.scenario, args.params, args.bag, args.loop, args.storage,
+                       lockstep=args.lockstep, paced=not args.unpaced)
     env = isolated_env(args.domain_id)
     up = Bringup(specs, env, Path(args.logs) if args.logs else None)
     interrupted = [False]

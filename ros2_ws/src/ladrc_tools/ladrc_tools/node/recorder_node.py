@@ -18,7 +18,9 @@ Parameters: ``output`` (bag folder; default ``bags/run_<date>_<time>``), ``stora
 run; sqlite3 needs it for crash safety and uses 1 s when 0), ``flush_s`` (mcap: chunk flush
 period, the most a kill loses besides the queue), ``compression`` (mcap chunks: ``zstd`` |
 ``lz4`` | ``none``), ``queue_max`` (messages), ``stop_grace_s`` (keeps recording this long
-after SIGINT/SIGTERM, for the other nodes' last messages when all are interrupted at once).
+after SIGINT/SIGTERM, for the other nodes' last messages when all are interrupted at once),
+``reliable`` (subscribe the 2 kHz topics RELIABLE: lock step, whose writers are reliable, so a
+recorder that falls behind is repaired rather than losing messages; docs/follow-node.md).
 Topics are stored under their fully qualified names (the node's namespace applies).
 /diagnostics once a second: queue length, messages written, dropped per topic. On
 SIGINT/SIGTERM: drain the queue, close the bag, print a one-line JSON summary (messages per
@@ -50,10 +52,14 @@ from ..bags.bag import (
 READER_DEPTH = 10000  # 5 s of a 2 kHz topic
 
 
-def _qos_profile(topic: str) -> Any:
+def _qos_profile(topic: str, reliable: bool = False) -> Any:
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     q = TOPIC_QOS[topic]
+    if reliable and topic in SEQ_FIELD:
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=READER_DEPTH,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
     # The reader's own history must outlast a stall of this process (GIL held by the writer
     # thread while it closes a segment, a loaded machine): keep-last 100 at 2 kHz is only
     # 50 ms. Depth is not part of QoS matching, so a deep reader still matches the publishers.
@@ -239,6 +245,7 @@ def main(args: list[str] | None = None) -> int:
         compression = node.declare_parameter('compression', 'zstd').value
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
         grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
+        reliable = bool(node.declare_parameter('reliable', False).value)
         clock = node.get_clock()  # bag time = receive time on the node clock, as ros2 bag
 
         def on_message(data: bytes, topic: str) -> None:
@@ -246,7 +253,7 @@ def main(args: list[str] | None = None) -> int:
 
         subs = {topic: node.create_subscription(
             _msg_class(msgtype), topic, lambda data, t=topic: on_message(data, t),
-            _qos_profile(topic), raw=True) for topic, msgtype in TOPIC_TYPES.items()}
+            _qos_profile(topic, reliable), raw=True) for topic, msgtype in TOPIC_TYPES.items()}
         try:
             recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
                                 topics={t: s.topic_name for t, s in subs.items()})

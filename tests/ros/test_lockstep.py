@@ -1,0 +1,93 @@
+"""Live in lock step equals headless: same scenario and seed, every message bit for bit.
+
+The sim node and the follow node run as real processes over DDS in lock step (the sim publishes
+step k and steps the plant only when the command answering k has arrived; the controller ticks
+on the sim's clock), with the recorder; ``ladrc simulate`` runs the same scenario headless and
+writes the same bag layout. Every field of every message of the contract topics must be equal,
+except those listed in ``WALL_TIME``. Nothing here depends on how the processes get scheduled:
+a loaded machine makes the run slower, never different.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+
+from bagdiff import diff_bags
+import pytest
+
+pytest.importorskip('rclpy')
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
+pytestmark = pytest.mark.ros
+
+TOPICS = ['axis/capacitive_height', 'axis/feedback', 'axis/velocity_command', 'follow/status',
+          'sim/truth', 'follow/events']
+# Fields that measure wall time (the tick's period, its compute time, the late-tick flag), the
+# bag's own receive time, and the commander's session (drawn at random when the follow node
+# starts: docs/interfaces.md, "One commander"). Everything else, stamps and input ages
+# included, is the sim's time in lock step and equal.
+WALL_TIME = {'period_us', 'compute_us', 'overrun', 'timestamp_ns', 'session'}
+# No lock-step run may hang: it is slower on a loaded machine, never different, so this is a
+# bound on a hang, not on speed.
+HANG_S = 900
+
+
+def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
+    """Run a command in its own process group; end the group by its PID if it hangs."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True, env=dict(os.environ), **kw)
+    try:
+        out, _ = proc.communicate(timeout=HANG_S)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, _ = proc.communicate()
+        raise AssertionError(f'{cmd[0]} hung for {HANG_S} s:\n{out[-3000:]}') from None
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, '')
+
+
+def lockstep_run(scenario: str, bag: Path, logs: Path) -> None:
+    """``bringup --lockstep`` (sim, follow node, recorder as processes) into ``bag``."""
+    res = run([str(BIN / 'bringup'), '--scenario', scenario, '--lockstep', '--unpaced',
+               '--bag', str(bag), '--logs', str(logs),
+               '--domain-id', os.environ['ROS_DOMAIN_ID']])
+    logs_text = '\n'.join(f'--- {p.name}\n{p.read_text(errors="replace")[-2000:]}'
+                          for p in sorted(logs.glob('*.log')))
+    assert res.returncode == 0, res.stdout[-2000:] + logs_text
+    assert json.loads(res.stdout.strip().splitlines()[-1])['exit_codes'] == {
+        'ladrc_follow': 0, 'ladrc_sim': 0, 'ladrc_recorder': 0}, logs_text
+    summary = json.loads((bag / 'recording.json').read_text())
+    assert summary['messages_lost'] == 0 and summary['messages_dropped'] == 0, summary
+
+
+@pytest.mark.parametrize('scenario', ['showcase', 'faults', 'thin_sheet'])
+def test_live_lockstep_equals_headless(tmp_path, scenario):
+    live, headless = tmp_path / 'live', tmp_path / 'headless'
+    lockstep_run(scenario, live, tmp_path / 'logs')
+    res = run([str(BIN / 'ladrc'), 'simulate', scenario, '-o', str(headless)])
+    assert res.returncode == 0, res.stdout[-2000:]
+
+    # the headless run has one command per tick; the live controller adds its zero commands
+    # with enable off on the way down (SIGINT), after the last tick
+    with_ticks = json.loads(res.stdout.strip().splitlines()[-1])
+    n = int(round(with_ticks['duration_s'] / 0.0005))
+    diffs = diff_bags(headless, live, TOPICS, WALL_TIME, limit={'axis/velocity_command': n})
+    for d in diffs:
+        assert not d.missing and not d.differing, (d.topic, d.missing, d.differing)
+        if d.topic == 'axis/velocity_command':
+            assert d.count_a == n and d.count_b >= n, (d.count_a, d.count_b)
+            continue
+        assert d.count_a == d.count_b, (d.topic, d.count_a, d.count_b)
+    status = next(d for d in diffs if d.topic == 'follow/status')
+    assert status.compared == n  # every tick of the scenario
+
+    if scenario == 'showcase':
+        # a live bag replays through the core bit for bit (ladrc replay)
+        rep = run([str(BIN / 'ladrc'), 'replay', str(live)])
+        line = json.loads(rep.stdout.strip().splitlines()[-1])
+        assert rep.returncode == 0 and line['mismatches'] == 0, rep.stdout[-2000:]
+        assert line['missing_ticks'] == 0 and line['ticks'] == n, line
