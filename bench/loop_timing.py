@@ -1,19 +1,29 @@
-"""Closed-loop timing of the follow node against the sim node, with a bare-timer floor.
+"""Closed-loop timing of the follow node against the sim node, per loop mode, with a floor.
 
-    scripts/in-env python bench/loop_timing.py [--duration 60] [--loop deadline|timer|both]
+    scripts/in-env python bench/loop_timing.py [--duration 60] [--loops sync,deadline,timer]
+                                               [--recorder both|with|without] [--lockstep 20]
 
 1. The floor: a bare rclpy 2 kHz steady timer on an EventsExecutor (spin_once loop),
    publishing one Float64 per tick, alone, for ``--floor`` seconds.
-2. The closed loop: sim node + follow node as separate processes (isolated domain), the
-   controller following at 1 mm on the ``follow_sine`` test scenario, for ``--duration``
-   seconds per loop mode. A probe records follow/status and /diagnostics.
+2. Per loop mode (``sync``, ``deadline``, ``timer``) and recorder setting: the sim node and the
+   follow node as processes (the bring-up's node set, the product's defaults: 10 ms stale
+   limit, 5 ms drive watchdog, SCHED_FIFO where granted), the controller following at 1 mm on
+   a 0.3 mm 1 Hz sine sheet for ``--duration`` seconds after a 3 s approach (the sim plays
+   the start as the CNC would). "with": the recorder records every contract topic (a third
+   2 kHz process); "without": it records only ``follow/status`` and ``axis/capacitive_height``,
+   which the figures need.
+3. Lock step: the same scenario in lock step, unpaced, with the full recorder: its speed as a
+   multiple of real time (simulated seconds over wall seconds of the sim's loop).
 
-Figures: controller rate, tick period p50/p99/p99.9/max and overruns (from the status' own
-period field), sensor samples the controller never received (its seq-gap counter, reported in
-/diagnostics), samples it received but never used (superseded before a tick), and
-sensor-stamp → command latency p50/p99 (tick time − sample stamp + compute time). Last line:
-one JSON object (keys ``rate_hz``, ``period_p99_us``, ``bare_timer_period_p99_us``,
-``missed_samples``, ``latency_p99_ms`` for the default loop, plus per-mode details).
+Figures per run, from the bag: rate (ticks per second of the controller's own clock), tick
+period p50/p99/p99.9/max and periods over 2 ms (the status' own period field); sensor samples
+never received (seq gaps of what the controller used, less those it received: the node's
+``missed_gap_samples`` on /diagnostics), superseded (received, never used by a tick), reused
+(a tick on the same sample as the tick before), handled later than one period (the tick ran
+more than h after the sample arrived); sensor → command latency p50/p99 (the sample's stamp at
+the sim → the command's stamp at the controller plus its compute time: one system clock).
+Last line: one JSON object, the default loop's figures at top level and every run under
+``runs``.
 """
 
 from __future__ import annotations
@@ -24,19 +34,27 @@ import os
 from pathlib import Path
 import random
 import sys
+import tempfile
 import time
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'tests' / 'support'))
-os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-import rclpy  # noqa: E402
-from rclpy.clock import Clock, ClockType  # noqa: E402
-from rclpy.experimental import EventsExecutor  # noqa: E402
-from std_msgs.msg import Float64  # noqa: E402
+SCENARIO = """name: loop_timing
+description: bench/loop_timing.py - approach from 3 mm, follow at 1 mm over a 0.3 mm 1 Hz sine.
+duration_s: {duration}
+seed: 3
+initial_gap_mm: 3.0
+sensor: {{noise_std_mm: 0.003, quant_mm: 0.001}}
+sheet:
+  profiles:
+    - {{kind: sine, amp_mm: 0.3, freq_hz: 1.0, t_start_s: 2.0}}
+timeline:
+  - {{t_s: 0.5, do: start_follow, target_gap_mm: 1.0}}
+"""
+WARMUP_S = 3.0
+H_S = 0.0005
 
 
 def percentiles(x: np.ndarray) -> dict[str, float]:
@@ -50,6 +68,11 @@ def percentiles(x: np.ndarray) -> dict[str, float]:
 
 def bare_timer(seconds: float) -> dict[str, float]:
     """Period statistics of a bare 2 kHz rclpy timer publishing a Float64 per tick."""
+    import rclpy
+    from rclpy.clock import Clock, ClockType
+    from rclpy.experimental import EventsExecutor
+    from std_msgs.msg import Float64
+
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node('bare_timer', context=context)
@@ -77,102 +100,150 @@ def bare_timer(seconds: float) -> dict[str, float]:
             'period_p99_us': p['p99'], 'period_p999_us': p['p999'], 'period_max_us': p['max']}
 
 
-def closed_loop(seconds: float, loop: str) -> dict[str, float]:
-    """Run sim + follow node for ``seconds`` of following; return the loop figures."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from ladrc_msgs.msg import FollowStatus
-    from ladrc_msgs.srv import StartFollow
-    from rosnodes import NodeProcesses, Probe
+def run_node_set(folder: Path, duration_s: float, loop: str, recorder: str,
+                 lockstep: bool = False) -> tuple[Path, dict[str, str]]:
+    """Play the scenario live with the bring-up's node set; return the bag and the logs."""
+    from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
 
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    nodes = NodeProcesses()
-    probe = Probe(context, 'loop_timing_probe')
-    diags: dict[str, str] = {}
+    scenario = folder / 'loop_timing.yaml'
+    scenario.write_text(SCENARIO.format(duration=WARMUP_S + duration_s))
+    bag = folder / f'bag_{loop}_{recorder}'
+    specs = node_specs(str(scenario), bag=str(bag), loop=loop, lockstep=lockstep, paced=False)
+    for spec in specs:
+        if spec.name == 'ladrc_recorder' and recorder == 'without':
+            spec.parameters['topics'] = ("['follow/status', 'axis/capacitive_height', "
+                                         "'/diagnostics']")
+    logs = folder / f'logs_{loop}_{recorder}'
+    up = Bringup(specs, isolated_env(random.randint(1, 101)), logs)
     try:
-        nodes.start('follow', 'ladrc_follow', 'follow_node', '-p', f'loop:={loop}')
-        scenario = ROOT / 'tests' / 'ros' / 'scenarios' / 'follow_sine.yaml'
-        nodes.start('sim', 'ladrc_sim', 'sim_node', '-p', f'scenario:={scenario}',
-                    '-p', 'wait_for_controller_s:=0.0')
-        log = probe.record(FollowStatus, 'follow/status', keep=lambda m: (
-            m.tick, m.period_us, m.compute_us, m.t_s, m.gap_stamp_s, m.gap_seq, m.overrun))
-
-        def on_diag(msg):
-            for st in msg.status:
-                if st.name.startswith('ladrc_follow'):
-                    diags.update({kv.key: kv.value for kv in st.values})
-
-        probe.subscribe(DiagnosticArray, '/diagnostics', on_diag)
-        if not probe.spin_until(lambda: len(log) > 100 and log[-1][5] > 0, 30.0):
-            raise RuntimeError('no follow/status: ' + nodes.log('follow')[-2000:])
-        probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0))
-        probe.spin_for(2.0)  # approach; then measure
-        first = len(log)
-        missed0 = float(diags.get('missed_gap_samples', 0))
-        probe.spin_for(seconds)
-        last = len(log)
-        probe.spin_for(1.2)  # one more diagnostics message
-        missed = float(diags.get('missed_gap_samples', 0)) - missed0
-        cols = log[first:last]  # decoded here, off the receive path
+        up.start()
+        if up.wait('ladrc_sim', 120 + 10 * duration_s) is None:
+            raise RuntimeError('the sim node did not finish')
     finally:
-        probe.close()
-        nodes.close()
-        rclpy.try_shutdown(context=context)
-    a = np.asarray(cols, dtype=float)
-    ticks = a[:, 0]
-    period = a[:, 1]
-    latency_ms = ((a[:, 3] - a[:, 4]) * 1e3 + a[:, 2] * 1e-3)
-    used = np.unique(a[:, 5])
+        up.stop()
+    return bag, {p.stem: p.read_text(errors='replace') for p in logs.glob('*.log')}
+
+
+def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
+    """Return the loop's figures from its bag (module docstring)."""
+    from ladrc_tools.bags.bag import open_bag
+
+    with open_bag(bag) as b:
+        st = b.columns('follow/status', ['tick', 't_s', 'period_us', 'compute_us', 'gap_seq',
+                                         'gap_stamp_s', 'header.stamp.sec',
+                                         'header.stamp.nanosec', 'state', 'overrun'])
+        gap = b.columns('axis/capacitive_height', ['seq', 'header.stamp.sec',
+                                                   'header.stamp.nanosec'])
+        missed = []  # the follow node's count of samples it never received, at 1 Hz
+        for _, msg in b.messages('/diagnostics'):
+            for s in msg.status:
+                if s.name.startswith('ladrc_follow'):
+                    values = {kv.key: kv.value for kv in s.values}
+                    missed.append(float(values.get('missed_gap_samples', 'nan')))
+    keep = st['t_s'] >= st['t_s'][0] + WARMUP_S
+    t = st['t_s'][keep]
+    ticks = st['tick'][keep].astype(np.int64)
+    period = st['period_us'][keep]
+    compute = st['compute_us'][keep]
+    gseq = st['gap_seq'][keep].astype(np.int64)
+    wait_s = t - st['gap_stamp_s'][keep]
+    stamp_ns = (st['header.stamp.sec'][keep].astype(np.int64) * 1_000_000_000
+                + st['header.stamp.nanosec'][keep])
+    # the sensor stamp of the sample each tick used
+    g_ns = dict(zip(gap['seq'].astype(np.int64).tolist(),
+                    (gap['header.stamp.sec'].astype(np.int64) * 1_000_000_000
+                     + gap['header.stamp.nanosec']).tolist(), strict=True))
+    sample_ns = np.array([g_ns.get(s, -1) for s in gseq.tolist()], dtype=np.int64)
+    known = sample_ns >= 0
+    latency_ms = ((stamp_ns - sample_ns) * 1e-6 + compute * 1e-3)[known]
+    # consecutive ticks both in the bag (a recorder may lose some: they do not count)
+    pair = np.diff(ticks) == 1
+    dseq = np.diff(gseq)[pair]
+    skipped = int(np.maximum(dseq - 1, 0).sum())
+    never_received = int(missed[-1] - missed[1]) if len(missed) > 3 else -1
+    # the never-received count covers the whole run; scale it to the pairs seen
+    seen = pair.sum() / max(1, ticks[-1] - ticks[0])
     p = percentiles(period[1:])
     lat = percentiles(latency_ms)
+    states = st['state'][keep]
     return {
-        'loop': loop,
-        # from the controller's own tick counter over the stamps of the first and last status
-        'rate_hz': (ticks[-1] - ticks[0]) / (a[-1, 3] - a[0, 3]),
-        'status_received': int(len(ticks)),
-        'status_lost_to_probe': int(ticks[-1] - ticks[0] + 1 - len(ticks)),
+        'rate_hz': float((ticks[-1] - ticks[0]) / (t[-1] - t[0])),
+        'ticks': int(ticks.size),
         'period_p50_us': p['p50'], 'period_p99_us': p['p99'], 'period_p999_us': p['p999'],
         'period_max_us': p['max'],
-        'overruns': int(a[:, 6].sum()),
-        'missed_samples': int(missed),
-        'unused_samples': int(used[-1] - used[0] + 1 - used.size),
+        'periods_over_2ms': int((period > 2000.0).sum()),
+        'overruns': int(st['overrun'][keep].sum()),
+        # over consecutive ticks: samples the sim sent that no tick used (never received by the
+        # controller: its seq-gap count on /diagnostics; the rest superseded by a newer one
+        # before a tick), ticks on the sample of the tick before, ticks more than one period
+        # after their sample arrived
+        'tick_pairs_seen': int(pair.sum()),
+        'samples_never_used': skipped,
+        'samples_never_received': never_received,
+        'samples_superseded': int(max(0, skipped - max(never_received, 0) * seen)),
+        'samples_reused': int((dseq == 0).sum()),
+        'samples_handled_late': int((wait_s > H_S).sum()),
+        'status_lost_by_recorder': int(ticks[-1] - ticks[0] + 1 - ticks.size),
         'latency_p50_ms': lat['p50'], 'latency_p99_ms': lat['p99'],
+        'fault_ticks': int((states == 5).sum()),
+        'watchdog_trips': sum(line.count('watchdog:') for line in
+                              logs.get('ladrc_sim', '').splitlines()),
     }
+
+
+def lockstep_speed(folder: Path, duration_s: float) -> dict[str, float]:
+    """Lock step with the full recorder: simulated seconds over wall seconds of the sim."""
+    bag, logs = run_node_set(folder, duration_s, 'lockstep', 'with', lockstep=True)
+    lines = [line for line in logs['ladrc_sim'].splitlines() if '[ladrc_sim]: scenario' in line]
+
+    def stamp(line: str) -> float:
+        return float(line.split('[')[2].split(']')[0])
+
+    wall = stamp(lines[-1]) - stamp(lines[0])
+    sim_s = WARMUP_S + duration_s
+    summary = json.loads((bag / 'recording.json').read_text())
+    return {'sim_s': sim_s, 'wall_s': wall, 'realtime_x': sim_s / wall,
+            'messages_lost': summary['messages_lost']}
 
 
 def main() -> int:
     """Measure and print the figures; last line JSON."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--duration', type=float, default=60.0,
-                    help='seconds of closed loop per loop mode [60]')
+                    help='seconds of following measured per run [60]')
     ap.add_argument('--floor', type=float, default=10.0, help='seconds of bare timer [10]')
-    ap.add_argument('--loop', default='deadline', choices=['deadline', 'timer', 'both'])
+    ap.add_argument('--loops', default='sync,deadline,timer',
+                    help='loop modes, comma separated; the first is reported at top level')
+    ap.add_argument('--recorder', default='both', choices=['both', 'with', 'without'])
+    ap.add_argument('--lockstep', type=float, default=20.0,
+                    help='simulated seconds of the lock-step speed run; 0: none [20]')
     args = ap.parse_args()
+    os.environ.setdefault('PYTHONUNBUFFERED', '1')
     floor = bare_timer(args.floor)
     print(f'bare timer: {floor}', file=sys.stderr)
-    modes = ['deadline', 'timer'] if args.loop == 'both' else [args.loop]
-    runs = {}
-    for mode in modes:
-        runs[mode] = closed_loop(args.duration, mode)
-        print(f'{mode}: {runs[mode]}', file=sys.stderr)
-    main_run = runs[modes[0]]
-    out = {
-        'duration_s': args.duration,
-        'rate_hz': main_run['rate_hz'],
-        'period_p50_us': main_run['period_p50_us'],
-        'period_p99_us': main_run['period_p99_us'],
-        'period_p999_us': main_run['period_p999_us'],
-        'period_max_us': main_run['period_max_us'],
-        'overruns': main_run['overruns'],
-        'missed_samples': main_run['missed_samples'],
-        'unused_samples': main_run['unused_samples'],
-        'latency_p50_ms': main_run['latency_p50_ms'],
-        'latency_p99_ms': main_run['latency_p99_ms'],
-        'bare_timer_rate_hz': floor['rate_hz'],
-        'bare_timer_period_p99_us': floor['period_p99_us'],
-        'period_p99_over_bare': main_run['period_p99_us'] / floor['period_p99_us'],
-        'runs': runs,
-    }
+    recs = ['without', 'with'] if args.recorder == 'both' else [args.recorder]
+    runs: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory(prefix='loop_timing_') as tmp:
+        for loop in args.loops.split(','):
+            for rec in recs:
+                folder = Path(tmp) / f'{loop}_{rec}'
+                folder.mkdir()
+                bag, logs = run_node_set(folder, args.duration, loop, rec)
+                runs[f'{loop}/{rec}_recorder'] = figures(bag, logs)
+                print(f'{loop}, {rec} recorder: {runs[f"{loop}/{rec}_recorder"]}',
+                      file=sys.stderr)
+        lock = None
+        if args.lockstep > 0:
+            folder = Path(tmp) / 'lockstep'
+            folder.mkdir()
+            lock = lockstep_speed(folder, args.lockstep)
+            print(f'lock step: {lock}', file=sys.stderr)
+    main_run = runs[next(iter(runs))]
+    out = {'duration_s': args.duration, **main_run,
+           'bare_timer_rate_hz': floor['rate_hz'],
+           'bare_timer_period_p99_us': floor['period_p99_us'],
+           'lockstep_realtime_x': lock['realtime_x'] if lock else None,
+           'runs': runs, 'lockstep': lock}
     print(json.dumps(out))
     return 0
 

@@ -94,7 +94,7 @@ def test_seq_counting():
             header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
                 sec=3, nanosec=4), frame_id=frame), seq=2**40 + 7, true_gap_mm=1.0,
             sheet_mm=0.0, nozzle_mm=1.0, edge_coverage=1.0, plate_velocity_mm_s=0.0,
-            collision=False)
+            collision=False, x_mm=0.0, y_mm=0.0)
         assert seq_of(store.serialize_cdr(msg, 'ladrc_msgs/msg/SimTruth')) == 2**40 + 7
 
 

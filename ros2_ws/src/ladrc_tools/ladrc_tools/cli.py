@@ -613,6 +613,9 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
                    help='--sim: the start gap of the simulated axis [5]')
     p.add_argument('--sim-noise-mm', type=float, default=0.005,
                    help='--sim: sensor noise [0.005]')
+    p.add_argument('--lockstep', action='store_true',
+                   help='in lock step with the sim node (its --sim, or one the caller started '
+                   'with lockstep:=true): deterministic, no drive watchdog (docs/follow-node.md)')
     p.add_argument('--sim-watchdog-ms', type=float, default=50.0,
                    help="--sim: the simulated drive's command watchdog [50; the product's 5 ms "
                    'trips on a loaded 2-core machine, docs/calibration.md]')
@@ -639,7 +642,7 @@ def _run_calibrate(a: argparse.Namespace) -> int:
 
         if a.sim:
             sim = SimOptions(a.sim_gap_mm, a.sim_noise_mm, a.sim_watchdog_ms * 1e-3)
-        result = run_calibration(str(out), motion, sim)
+        result = run_calibration(str(out), motion, sim, lockstep=a.lockstep)
     except (CalibrationError, FileNotFoundError) as exc:
         raise CliError(' '.join(str(exc).split())) from None
     except ImportError as exc:

@@ -244,9 +244,15 @@ class FollowNode(Node):
         self._enc_last_seq = -1
         self.missed_gap_samples = 0
         self.missed_feedback_samples = 0
-        # loop 'sync': a new sample of each input since the last tick; the sample-period check
+        # loop 'sync': a sample of each input for the coming tick's cycle has arrived. Each tick
+        # consumes one cycle of each input (the seq it waits for next), also a tick on the own
+        # deadline: a sample that comes after its cycle was ticked without it is held for the
+        # next tick and starts none of its own (two ticks within one period would integrate
+        # the core's h_s twice).
         self.new_gap = False
         self.new_feedback = False
+        self._gap_expect = 0
+        self._fb_expect = 0
         self.sync_wait_ns = int(round(self.node_params.sync_wait_s * 1e9))
         self.deadline_ticks = 0  # sync: ticks run on the own deadline (a sample was late)
         self._rate_window: tuple[int, int] | None = None  # (first seq, its receive ns)
@@ -422,7 +428,8 @@ class FollowNode(Node):
             self.missed_gap_samples += seq - self._gap_last_seq - 1
         self._gap_last_seq = seq
         self.gap_seq = seq
-        self.new_gap = True
+        if seq >= self._gap_expect or seq + 64 < self._gap_expect:  # (a restarted sender)
+            self.new_gap = True
         self.gap_stamp_s, stamp_ok = self._receive(msg.header.stamp)
         self._last_sample = (msg.gap_mm, msg.raw_hz, msg.valid, msg.status, stamp_ok)
         self._set_gap(*self._last_sample)
@@ -448,7 +455,8 @@ class FollowNode(Node):
             self.missed_feedback_samples += seq - self._enc_last_seq - 1
         self._enc_last_seq = seq
         self.enc_seq = seq
-        self.new_feedback = True
+        if seq >= self._fb_expect or seq + 64 < self._fb_expect:  # (a restarted sender)
+            self.new_feedback = True
         if self.loop_mode == 'sync':
             self._check_sample_period(seq)
         self.enc_stamp_s, stamp_ok = self._receive(msg.header.stamp)
@@ -504,6 +512,8 @@ class FollowNode(Node):
         """Loop 'sync': tick on the samples received (both new, or the deadline came)."""
         if not (self.new_gap and self.new_feedback):
             self.deadline_ticks += 1
+        self._gap_expect = self.gap_seq + 1 if self.new_gap else self._gap_expect + 1
+        self._fb_expect = self.enc_seq + 1 if self.new_feedback else self._fb_expect + 1
         self.new_gap = self.new_feedback = False
         if self._period_fault and self.controller.state != FollowState.FAULT:
             self.controller.fail(self._period_fault)

@@ -425,6 +425,16 @@ class SimNode(Node):
         fb.fault_reason = reason
         if enc_fresh:
             self.pub_fb.publish(fb)
+        if self.pub_step is not None:
+            # the step goes out before the truth: the controller computes while the sim
+            # publishes what only the recorder reads
+            st = self._step_msg
+            st.header.stamp.sec = sec
+            st.header.stamp.nanosec = nsec
+            st.step = seq
+            st.gap_seq, st.gap_fresh = gap.seq, gap_fresh
+            st.encoder_seq, st.encoder_fresh = fb.seq, enc_fresh
+            self.pub_step.publish(st)
         tr = self._truth
         tr.header.stamp.sec = sec
         tr.header.stamp.nanosec = nsec
@@ -434,14 +444,6 @@ class SimNode(Node):
         tr.collision = bool(truth[0] <= 0.0)
         tr.x_mm = tr.y_mm = math.nan
         self.pub_truth.publish(tr)
-        if self.pub_step is not None:
-            st = self._step_msg
-            st.header.stamp.sec = sec
-            st.header.stamp.nanosec = nsec
-            st.step = seq
-            st.gap_seq, st.gap_fresh = gap.seq, gap_fresh
-            st.encoder_seq, st.encoder_fresh = fb.seq, enc_fresh
-            self.pub_step.publish(st)
 
     def wait_for_controller(self, executor, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""

@@ -15,6 +15,10 @@ is interpolated at its stamp (exact when the driver stamps both alike, as the si
 and the table is built, checked and written (:func:`~ladrc_tools.commissioning.calibration.
 build_table`, :func:`~ladrc_tools.commissioning.calibration.write_calibration`).
 
+Lock step (``lockstep: true``, against the sim node in lock step, docs/follow-node.md): the
+node ticks once per ``sim/lockstep`` step, on the sim's clock, and answers every step (zero with
+``enable`` false while no sweep runs), so a calibration on the sim is deterministic.
+
 Safety (docs/safety.md): the procedure stops at once on contact and aborts on any surprise; an
 exception in a tick or a callback, Ctrl-C and SIGTERM publish zero velocity with ``enable``
 false first; when a sweep ends the node publishes zero with ``enable`` false and then stops
@@ -28,14 +32,16 @@ import gc
 import json
 import math
 from pathlib import Path
+import secrets
 import signal
 import sys
 import time
 from typing import Any, NamedTuple
 
-from ladrc_follow.node.qos import HIGH_RATE, RUN_TEXT
+from ladrc_follow.node.follow_node import sim_time_s
+from ladrc_follow.node.qos import HIGH_RATE, LOCKSTEP_HIGH_RATE, LOCKSTEP_INPUT, RUN_TEXT
 from ladrc_follow.node.realtime import apply_realtime
-from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, SimTruth, VelocityCommand
+from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import Calibrate
 import numpy as np
 import rclpy
@@ -89,6 +95,7 @@ class CalibrateNode(Node):
         self.declare_parameter('source', 'driver')
         self.declare_parameter('thread_priority', 50)
         self.declare_parameter('lock_memory', True)
+        self.lockstep = bool(self.declare_parameter('lockstep', False).value)
         self.motion = SweepMotion(**{f.name: float(self.get_parameter(f.name).value)
                                      for f in fields(SweepMotion)})
         reasons = self.motion.problems()
@@ -114,22 +121,51 @@ class CalibrateNode(Node):
         self.cmd_seq = 0
         self._gap_seq = -1  # the newest sample seen of each stream (repeats are not fresh)
         self._fb_seq = -1
+        # lock step: the step waiting for its samples, the step being ticked (its time)
+        self.step: tuple[int, int, bool, int, bool] | None = None
+        self.step_k = 0
+        record = RECORD
+        if self.lockstep:
+            record = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.VOLATILE)
+            self.create_subscription(LockStep, 'sim/lockstep', self._on_step, LOCKSTEP_INPUT)
         self.create_subscription(CapacitiveHeight, 'axis/capacitive_height', self._on_gap,
-                                 RECORD)
-        self.create_subscription(AxisFeedback, 'axis/feedback', self._on_feedback, RECORD)
+                                 record)
+        self.create_subscription(AxisFeedback, 'axis/feedback', self._on_feedback, record)
         truth_topic = self.get_parameter('truth_topic').value
         if truth_topic:
-            self.create_subscription(SimTruth, truth_topic, self._on_truth, RECORD)
+            self.create_subscription(SimTruth, truth_topic, self._on_truth, record)
         self.pub_cmd = self.create_publisher(VelocityCommand, 'axis/velocity_command',
-                                             HIGH_RATE)
+                                             LOCKSTEP_HIGH_RATE if self.lockstep else HIGH_RATE)
         self.pub_result = self.create_publisher(String, 'calibration/result', RUN_TEXT)
         self.create_service(Calibrate, 'calibrate', self._srv_calibrate)
         self._cmd = VelocityCommand()
         self._cmd.header.frame_id = 'z_axis'
+        self._cmd.commander = self.get_fully_qualified_name()
+        self._cmd.session = secrets.randbits(63) or 1
 
     # ---- inputs ------------------------------------------------------------------------
     def _now_s(self) -> float:
+        if self.lockstep:  # the sim's time of the step being ticked
+            return self.step_k * self.h_s
         return (time.monotonic_ns() - self._t0_ns) * 1e-9
+
+    def _sample_s(self, stamp) -> float:
+        """Return a sample's time: now (steady clock); lock step: its stamp (the sim's)."""
+        if self.lockstep:
+            return sim_time_s(stamp.sec * 1_000_000_000 + stamp.nanosec, self.period_ns,
+                              self.h_s)
+        return self._now_s()
+
+    def _on_step(self, msg: LockStep) -> None:
+        self.step = (msg.step, msg.gap_seq, msg.gap_fresh, msg.encoder_seq, msg.encoder_fresh)
+
+    def step_ready(self) -> bool:
+        """Lock step: a step is waiting and the samples it names have arrived."""
+        s = self.step
+        return s is not None and (not s[2] or self._gap_seq >= s[1]) and (
+            not s[4] or self._fb_seq >= s[3])
 
     def _stamp_s(self, stamp) -> float:
         ns = stamp.sec * 1_000_000_000 + stamp.nanosec
@@ -138,7 +174,7 @@ class CalibrateNode(Node):
         return (ns - self._stamp0_ns) * 1e-9
 
     def _on_gap(self, msg: CapacitiveHeight) -> None:
-        t = self._now_s()
+        t = self._sample_s(msg.header.stamp)
         if msg.seq <= self._gap_seq:
             return  # a repeated or older sample is not fresh data (a driver re-sending)
         self._gap_seq = msg.seq
@@ -153,7 +189,7 @@ class CalibrateNode(Node):
         if msg.seq <= self._fb_seq:
             return  # a repeated or older sample is not fresh data
         self._fb_seq = msg.seq
-        self.pos_mm, self.enc_t = msg.position_mm, self._now_s()
+        self.pos_mm, self.enc_t = msg.position_mm, self._sample_s(msg.header.stamp)
         self.drive_enabled, self.drive_fault = msg.drive_enabled, msg.drive_fault
         self.drive_reason = msg.fault_reason
         run = self.run
@@ -215,6 +251,7 @@ class CalibrateNode(Node):
         c = self._cmd
         c.header.stamp.sec, c.header.stamp.nanosec = sec, nsec
         c.seq = self.cmd_seq
+        c.sample_seq = self.step_k if self.lockstep else max(self._fb_seq, 0)
         c.velocity_mm_s = float(velocity_mm_s) if enable else 0.0
         c.enable = bool(enable)
         self.pub_cmd.publish(c)
@@ -318,6 +355,9 @@ class CalibrateNode(Node):
 def run_loop(node: CalibrateNode, executor, running: list[bool], until_done: bool = False
              ) -> None:
     """Serve callbacks; tick at 2 kHz while a sweep runs; process it when its motion ends."""
+    if node.lockstep:
+        run_lockstep(node, executor, running, until_done)
+        return
     period = node.period_ns
     mono = time.monotonic_ns
     next_ns = mono()
@@ -349,6 +389,31 @@ def run_loop(node: CalibrateNode, executor, running: list[bool], until_done: boo
                 return
 
 
+def run_lockstep(node: CalibrateNode, executor, running: list[bool], until_done: bool) -> None:
+    """Lock step: one tick per step of the sim; every step answered (zero when idle)."""
+    while running[0]:
+        if not node.step_ready():
+            try:
+                executor.spin_once(timeout_sec=0.05)
+            except Exception as exc:  # noqa: BLE001 - a callback failed: stop the axis
+                node.fail(f'callback failed: {type(exc).__name__}: {exc}')
+            continue
+        node.step_k = node.step[0]
+        node.step = None
+        answered = node.cmd_seq
+        ended = False
+        try:
+            ended = node.tick()
+        except Exception as exc:  # noqa: BLE001 - zero command first, then abort
+            node.fail(f'tick failed: {type(exc).__name__}: {exc}')
+        if node.cmd_seq == answered:  # no sweep moving: the step still gets its answer
+            node.publish_command(0.0, False)
+        if ended:
+            node.finish()
+        if until_done and node.last_result is not None:
+            return
+
+
 def stop_commanding(node: CalibrateNode, reason: str) -> None:
     """Abort a running sweep and leave the axis with zero velocity, enable false."""
     if node.active:
@@ -372,7 +437,7 @@ class SimOptions(NamedTuple):
 
 
 def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | None = None,
-                    wait_s: float = 10.0) -> dict[str, Any]:
+                    wait_s: float = 10.0, lockstep: bool = False) -> dict[str, Any]:
     """Run one sweep in this process (``ladrc calibrate``); return the result.
 
     With ``sim``: the sim node is started on a DDS domain of its own (random id, localhost
@@ -407,7 +472,8 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
             [executable_path('ladrc_sim', 'sim_node'), '--ros-args', '-p',
              f'scenario:={scenario}', '-p', 'wait_for_controller_s:=0.0', '-p',
              f'watchdog_timeout_s:={sim.watchdog_s}', '-p',
-             f'raw_only:={str(sim.raw_only).lower()}'],
+             f'raw_only:={str(sim.raw_only).lower()}']
+            + (['-p', 'lockstep:=true', '-p', 'realtime:=false'] if lockstep else []),
             stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ), start_new_session=True)
         log.close()
     running = [True]
@@ -423,14 +489,15 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
         for s in old:
             signal.signal(s, _stop)
         # sim/truth: only a simulator publishes it (the error against the true gap)
-        overrides = {**values, 'truth_topic': 'sim/truth', 'source': 'sim' if sim else 'driver'}
+        overrides = {**values, 'truth_topic': 'sim/truth', 'source': 'sim' if sim else 'driver',
+                     'lockstep': lockstep}
         node = CalibrateNode(context=context, parameter_overrides=[
             Parameter(k, value=v) for k, v in overrides.items()])
         from rclpy.experimental import EventsExecutor
 
         executor = EventsExecutor(context=context)
         executor.add_node(node)
-        apply_realtime(int(node.get_parameter('thread_priority').value), [],
+        apply_realtime(0 if lockstep else int(node.get_parameter('thread_priority').value), [],
                        bool(node.get_parameter('lock_memory').value))
         deadline = time.monotonic() + wait_s
         accepted, message = False, f'no samples from the driver within {wait_s:g} s'
@@ -487,7 +554,9 @@ def main(argv: list[str] | None = None) -> int:
 
         executor = EventsExecutor(context=node.context)
         executor.add_node(node)
-        _, warnings = apply_realtime(int(node.get_parameter('thread_priority').value), [],
+        # lock step: no SCHED_FIFO (ladrc_follow's follow_node.main says why)
+        _, warnings = apply_realtime(0 if node.lockstep
+                                     else int(node.get_parameter('thread_priority').value), [],
                                      bool(node.get_parameter('lock_memory').value))
         for text in warnings:
             node.get_logger().warning(text)

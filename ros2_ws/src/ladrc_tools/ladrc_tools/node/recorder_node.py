@@ -19,6 +19,7 @@ run; sqlite3 needs it for crash safety and uses 1 s when 0), ``flush_s`` (mcap: 
 period, the most a kill loses besides the queue), ``compression`` (mcap chunks: ``zstd`` |
 ``lz4`` | ``none``), ``queue_max`` (messages), ``stop_grace_s`` (keeps recording this long
 after SIGINT/SIGTERM, for the other nodes' last messages when all are interrupted at once),
+``topics`` (the contract topics to record; empty = all; bench/loop_timing.py records two),
 ``reliable`` (subscribe the 2 kHz topics RELIABLE: lock step, whose writers are reliable, so a
 recorder that falls behind is repaired rather than losing messages; docs/follow-node.md).
 Topics are stored under their fully qualified names (the node's namespace applies).
@@ -222,6 +223,7 @@ class _Diagnostics:
 
 def main(args: list[str] | None = None) -> int:
     """Run the recorder node until SIGINT/SIGTERM; print the JSON summary."""
+    from rcl_interfaces.msg import ParameterDescriptor
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -246,6 +248,13 @@ def main(args: list[str] | None = None) -> int:
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
         grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
         reliable = bool(node.declare_parameter('reliable', False).value)
+        only = [t.strip('/') for t in node.declare_parameter(
+            'topics', [''], ParameterDescriptor(dynamic_typing=True)).value if t]
+        unknown = sorted(set(only) - {t.strip('/') for t in TOPIC_TYPES})
+        if unknown:
+            print(f'recorder: not contract topics: {", ".join(unknown)}', file=sys.stderr)
+            return 2
+        wanted = {t: m for t, m in TOPIC_TYPES.items() if not only or t.strip('/') in only}
         clock = node.get_clock()  # bag time = receive time on the node clock, as ros2 bag
 
         def on_message(data: bytes, topic: str) -> None:
@@ -253,7 +262,7 @@ def main(args: list[str] | None = None) -> int:
 
         subs = {topic: node.create_subscription(
             _msg_class(msgtype), topic, lambda data, t=topic: on_message(data, t),
-            _qos_profile(topic, reliable), raw=True) for topic, msgtype in TOPIC_TYPES.items()}
+            _qos_profile(topic, reliable), raw=True) for topic, msgtype in wanted.items()}
         try:
             recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
                                 topics={t: s.topic_name for t, s in subs.items()})

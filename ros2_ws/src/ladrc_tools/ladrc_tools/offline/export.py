@@ -35,6 +35,9 @@ def export_csv(bag_path: str | Path, out_dir: str | Path | None = None,
     if out.exists():
         raise BagError(f'{out} exists already: choose another output folder (-o)')
     with open_bag(bag_path) as bag, building(out) as tmp:
+        if not bag.topics:
+            raise BagError(f'{bag_path}: no message could be read (a truncated or empty '
+                           'storage file)')
         names = []
         for topic in sorted(bag.topics):
             name = topic_filename(topic)
