@@ -12,7 +12,9 @@ ROOT = Path(__file__).resolve().parents[1]
 # tests/support: helpers shared by test modules (pytest runs with --import-mode=importlib,
 # which does not put test folders on sys.path).
 SRC = ROOT / 'ros2_ws' / 'src'
+# bench/: the real-time tests take their bounds from bench/stalls.py (STALL_MAX_S), the script
+# that measured this machine class's scheduling stalls.
 for path in (SRC / 'ladrc_follow', SRC / 'ladrc_sim', SRC / 'ladrc_tools',
-             ROOT / 'tests' / 'support'):
+             ROOT / 'tests' / 'support', ROOT / 'bench'):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))

@@ -2,16 +2,21 @@
 
 Every test session picks its own ROS_DOMAIN_ID (from its process id) so parallel runs and other
 ROS traffic on the machine never meet; discovery stays on localhost. Processes a test starts are
-tracked and killed at teardown.
+tracked and killed at teardown. The tests that watch nodes do it through the probe process
+(tests/support/rosnodes.py: ``Probe``, a process like the nodes), so the test process runs no
+rclpy; ``ros_context`` is for the tests of rclpy itself in the test process
+(test_msgs_contract.py).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
 
 import pytest
 
-rclpy = pytest.importorskip('rclpy', reason='needs the built workspace (make test)')
+if importlib.util.find_spec('rclpy') is None:
+    pytest.skip('needs the built workspace (make test)', allow_module_level=True)
 
 # Domain ids 1..101 for tests (0 is the default users run on; 102+ may collide with ports of
 # other tools). Set before any rclpy.init so every context and child process uses them.
@@ -23,6 +28,8 @@ os.environ.pop('ROS_LOCALHOST_ONLY', None)
 @pytest.fixture()
 def ros_context():
     """Yield an initialised rclpy context on the test domain; shut it down afterwards."""
+    import rclpy
+
     context = rclpy.Context()
     rclpy.init(context=context)
     try:

@@ -45,7 +45,7 @@ def _recorder(bag: Path, procs: list, storage: str = 'mcap') -> subprocess.Popen
     if not RECORDER.exists():
         pytest.skip('recorder console script not installed (build the workspace)')
     return _start([str(RECORDER), '--ros-args', '-p', f'output:={bag}', '-p',
-                   f'storage:={storage}'], procs)
+                   f'storage:={storage}', '-p', 'reliable:=true'], procs)
 
 
 def _wait_line(p: subprocess.Popen, word: str, timeout_s: float = 60.0) -> str:

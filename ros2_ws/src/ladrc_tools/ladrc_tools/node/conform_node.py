@@ -639,7 +639,9 @@ def _start_driver(opts: ConformOptions, folder: Path, env: dict[str, str]
             exe = executable_path('ladrc_sim', 'sim_node')
         except FileNotFoundError as exc:
             raise ConformError(str(exc)) from None
-        cmd = [exe, '--ros-args', '-p', f'scenario:={scenario}', '-p', 'exit_at_end:=true']
+        # the sim's drive watchdog is the timeout the kit checks (--watchdog-timeout-ms)
+        cmd = [exe, '--ros-args', '-p', f'scenario:={scenario}', '-p', 'exit_at_end:=true',
+               '-p', f'watchdog_timeout_s:={opts.tolerances.watchdog_timeout_s!r}']
         label = 'the sim node (ladrc_sim sim_node, flat sheet, no follow commands)'
     elif opts.driver_cmd:
         cmd = shlex.split(opts.driver_cmd)
