@@ -18,12 +18,13 @@ MESSAGES = sorted(name.rsplit('/', 1)[1] for name in msg_definitions())
 
 def test_contract_has_every_interface():
     # DESIGN.md's contract: capacitive height, axis feedback, velocity command, follow status,
-    # sim truth, plus the event log the replay needs.
+    # sim truth, plus the event log the replay needs; revision 2: the lock step and the CNC
+    # interface (docs/interfaces.md, "Revisions")
     assert set(MESSAGES) == {'AxisFeedback', 'CapacitiveHeight', 'FollowEvent', 'FollowStatus',
-                             'SimTruth', 'VelocityCommand'}
+                             'SimTruth', 'VelocityCommand', 'LockStep', 'CncMotion'}
     srv = importlib.import_module('ladrc_msgs.srv')
     for name in ('StartFollow', 'StopFollow', 'SetTarget', 'SetMachining', 'HeightCompensation',
-                 'GradientFollow', 'ResetFault'):
+                 'GradientFollow', 'ResetFault', 'Pierce', 'Lift', 'Leapfrog', 'Hold'):
         assert hasattr(srv, name), name
 
 

@@ -223,7 +223,6 @@ class _Diagnostics:
 
 def main(args: list[str] | None = None) -> int:
     """Run the recorder node until SIGINT/SIGTERM; print the JSON summary."""
-    from rcl_interfaces.msg import ParameterDescriptor
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -248,8 +247,7 @@ def main(args: list[str] | None = None) -> int:
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
         grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
         reliable = bool(node.declare_parameter('reliable', False).value)
-        only = [t.strip('/') for t in node.declare_parameter(
-            'topics', [''], ParameterDescriptor(dynamic_typing=True)).value if t]
+        only = [t.strip('/') for t in node.declare_parameter('topics', ['']).value if t]
         unknown = sorted(set(only) - {t.strip('/') for t in TOPIC_TYPES})
         if unknown:
             print(f'recorder: not contract topics: {", ".join(unknown)}', file=sys.stderr)
