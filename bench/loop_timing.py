@@ -212,7 +212,7 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=60.0,
                     help='seconds of following measured per run [60]')
     ap.add_argument('--floor', type=float, default=10.0, help='seconds of bare timer [10]')
-    ap.add_argument('--loops', default='sync,deadline,timer',
+    ap.add_argument('--loops', default='deadline,sync,timer',
                     help='loop modes, comma separated; the first is reported at top level')
     ap.add_argument('--recorder', default='both', choices=['both', 'with', 'without'])
     ap.add_argument('--lockstep', type=float, default=20.0,

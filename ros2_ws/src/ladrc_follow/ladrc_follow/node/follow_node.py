@@ -5,11 +5,12 @@ Thin by design (DESIGN.md): sensor callbacks store the latest samples as plain v
 ``VelocityCommand`` and one ``FollowStatus`` (with the exact inputs used, for replay). Nothing
 else happens on the tick path: no logging, no I/O, no allocation beyond the message fill.
 
-Loop (``loop``, docs/follow-node.md "The loop"): ``sync``, one tick per new pair of sensor
-samples, as soon as they arrive, with its own deadline when one is late; ``deadline``, an own
-0.5 ms deadline loop; ``timer``, a ROS timer; all on an ``EventsExecutor``. ``lockstep``: one
-tick per step of the sim node (``sim/lockstep``), on the sim's clock; offered against the sim
-node only. ``bench/loop_timing.py`` measures them, docs/follow-node.md says why the default won.
+Loop (``loop``, docs/follow-node.md "The loop"): ``deadline`` (default), an own 0.5 ms
+deadline loop; ``sync``, one tick per new pair of sensor samples, as soon as they arrive, with
+its own deadline when one is late; ``timer``, a ROS timer; all on an ``EventsExecutor``.
+``lockstep``: one tick per step of the sim node (``sim/lockstep``), on the sim's clock; offered
+against the sim node only. ``bench/loop_timing.py`` measures them, docs/follow-node.md says why
+the default won.
 QoS: see :mod:`ladrc_follow.node.qos`.
 
 Safety: zero velocity with ``enable = false`` on stop, fault, shutdown, SIGINT and SIGTERM
@@ -88,7 +89,7 @@ LOOP_MODES = ('sync', 'deadline', 'timer', 'lockstep')
 class NodeParams:
     """Parameters of the node itself (not of the controller), fixed at start-up."""
 
-    loop: str = param('sync', '', "tick source: 'sync' (one tick per new sensor sample "
+    loop: str = param('deadline', '', "tick source: 'sync' (one tick per new sensor sample "
                       "pair, own deadline when one is late), 'deadline' (own 0.5 ms deadline "
                       "loop), 'timer' (a ROS steady-clock timer) or 'lockstep' (one tick per "
                       "step of the sim node, on its clock; the sim node only)",

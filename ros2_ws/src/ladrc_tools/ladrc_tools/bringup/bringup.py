@@ -48,12 +48,12 @@ def default_params_file() -> str:
     return str(Path(__file__).resolve().parents[2] / 'config' / 'follow.yaml')
 
 
-LIVE_LOOPS = ('sync', 'deadline', 'timer')
+LIVE_LOOPS = ('deadline', 'sync', 'timer')
 """The follow node's loops against a drive (``lockstep`` is the sim node's alone)."""
 
 
 def node_specs(scenario: str, params_file: str | None = None, bag: str | None = None,
-               loop: str = 'sync', storage: str = 'mcap', lockstep: bool = False,
+               loop: str = 'deadline', storage: str = 'mcap', lockstep: bool = False,
                paced: bool = True) -> list[NodeSpec]:
     """Return the nodes of a simulated run: the one configuration bringup and launch share.
 
@@ -85,7 +85,7 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
 
 
 def axis_node_specs(params_file: str | None = None, bag: str | None = None,
-                    loop: str = 'sync', storage: str = 'mcap',
+                    loop: str = 'deadline', storage: str = 'mcap',
                     hardware_id: str = 'z_axis') -> list[NodeSpec]:
     """Return the nodes of a run on a real axis: the follow node (+ recorder), no simulator.
 
@@ -113,7 +113,7 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
                'empty: the shipped config/follow.yaml'),
     'bag': ('', 'record every contract topic into this bag folder (must not exist); empty: '
             'no recorder'),
-    'loop': ('sync', "follow node tick source: 'sync', 'deadline' or 'timer' "
+    'loop': ('deadline', "follow node tick source: 'deadline', 'sync' or 'timer' "
              '(docs/follow-node.md)'),
     'lockstep': ('false', 'simulated runs only: the sim node and the follow node in lock step '
                  '(deterministic, equal to the headless runner; docs/follow-node.md)'),
@@ -232,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')
     ap.add_argument('--bag', default=None, help='record a bag to this folder (must not exist)')
     ap.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
-    ap.add_argument('--loop', default='sync', choices=list(LIVE_LOOPS))
+    ap.add_argument('--loop', default='deadline', choices=list(LIVE_LOOPS))
     ap.add_argument('--lockstep', action='store_true',
                     help='sim node and follow node in lock step: deterministic, equal to the '
                     'headless runner (docs/follow-node.md)')
