@@ -20,7 +20,6 @@ import sys
 import tempfile
 import time
 from typing import Callable
-import warnings
 import weakref
 
 from ladrc_tools.bringup.bringup import executable_path, interrupt_process
@@ -253,17 +252,7 @@ class Probe:
     ``close()`` asks the process to quit and raises :class:`ProbeError` with its exit code and
     output if it does not end cleanly (a crash of rclpy is that process' crash, not pytest's).
 
-    ``Probe(context, name)`` (an rclpy context first) is the former in-process probe,
-    :class:`InProcessProbe`, kept for the bench scripts.
     """
-
-    def __new__(cls, *args, **kwargs):
-        if args and not isinstance(args[0], str):
-            warnings.warn('Probe(context, ...) is the in-process rclpy probe (InProcessProbe); '
-                          'tests use Probe(name) (a probe process)', DeprecationWarning,
-                          stacklevel=2)
-            return InProcessProbe(*args, **kwargs)
-        return super().__new__(cls)
 
     def __init__(self, name: str = 'probe', start_timeout_s: float = 60.0) -> None:
         self.name = name
@@ -461,117 +450,3 @@ class Probe:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-# ---------------------------------------------------------------------------------------------
-# The former in-process probe (rclpy in the calling process), kept for bench/loop_timing.py and
-# bench/fault_matrix.py. Tests use Probe: a crash of rclpy here (issue 21) ends the caller.
-
-def _qos_profile(spec):
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    if not isinstance(spec, str):
-        return spec
-    depth, reliability, durability = {
-        READER: (1000, ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE),
-        LATCHED: (100, ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL),
-        RELIABLE: (1000, ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE),
-    }[spec]
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
-                      durability=durability)
-
-
-class RawLog:
-    """Messages received raw (no deserialization on the receive path), decoded on access."""
-
-    def __init__(self, msg_type, keep: Callable | None) -> None:
-        self.msg_type = msg_type
-        self.keep = keep
-        self.raw: list[bytes] = []
-        self._cache: dict[int, object] = {}
-
-    def append(self, data: bytes) -> None:
-        self.raw.append(data)
-
-    def __len__(self) -> int:
-        return len(self.raw)
-
-    def _decode(self, i: int):
-        from rclpy.serialization import deserialize_message
-
-        if i < 0:
-            i += len(self.raw)
-        if i not in self._cache:
-            msg = deserialize_message(self.raw[i], self.msg_type)
-            self._cache[i] = msg if self.keep is None else self.keep(msg)
-        return self._cache[i]
-
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self._decode(i) for i in range(*index.indices(len(self.raw)))]
-        return self._decode(index)
-
-    def __iter__(self):
-        return (self._decode(i) for i in range(len(self.raw)))
-
-
-class InProcessProbe:
-    """The former test-side rclpy node (raw subscriptions polled, services on an executor)."""
-
-    def __init__(self, context, name: str = 'probe') -> None:
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-
-        self.node = rclpy.create_node(name, context=context)
-        self._service_node = rclpy.create_node(f'{name}_services', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self._service_node)
-        self.messages: dict[str, list] = {}
-        self._readers: list[tuple[object, RawLog]] = []
-        self._clients: dict[str, object] = {}
-
-    def record(self, msg_type, topic: str, qos=READER, keep: Callable | None = None) -> RawLog:
-        store = RawLog(msg_type, keep)
-        self.messages[topic] = store
-        sub = self.node.create_subscription(msg_type, topic, store.append, _qos_profile(qos),
-                                            raw=True)
-        self._readers.append((sub, store))
-        return store
-
-    def subscribe(self, msg_type, topic: str, callback: Callable, qos=10) -> None:
-        self._service_node.create_subscription(msg_type, topic, callback, _qos_profile(qos))
-
-    def poll(self) -> None:
-        for sub, store in self._readers:
-            with sub.handle:
-                while (taken := sub.handle.take_message(sub.msg_type, True)) is not None:
-                    store.append(taken[0])
-
-    def spin_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            self.poll()
-            if condition():
-                return True
-            self.executor.spin_once(timeout_sec=min(0.01, max(0.0, deadline - time.monotonic())))
-        self.poll()
-        return condition()
-
-    def spin_for(self, seconds: float) -> None:
-        self.spin_until(lambda: False, seconds)
-
-    def call(self, srv_type, name: str, request, timeout_s: float = 10.0):
-        client = self._clients.get(name)
-        if client is None:
-            client = self._service_node.create_client(srv_type, name)
-            assert self.spin_until(client.service_is_ready, timeout_s), f'{name} not available'
-            self.spin_for(0.3)
-            self._clients[name] = client
-        future = client.call_async(request)
-        assert self.spin_until(future.done, timeout_s), f'{name} did not answer'
-        return future.result()
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self._service_node.destroy_node()
-        self.node.destroy_node()
