@@ -482,7 +482,9 @@ class FollowNode(Node):
         self._rate_window = (seq, now)
         self.sample_period_s = (now - t0) * 1e-9 / (seq - seq0)
         deviation = self.sample_period_s / self.h_s - 1.0
-        if abs(deviation) > self.node_params.sample_period_tolerance and not self._period_fault:
+        if abs(deviation) <= self.node_params.sample_period_tolerance:
+            self._period_fault = ''  # back within tolerance: a reset clears the fault
+        elif not self._period_fault:
             self._period_fault = (
                 f'sample period {self.sample_period_s * 1e3:.3f} ms of axis/feedback differs '
                 f'from the controller period h_s {self.h_s * 1e3:g} ms by {deviation:+.0%} '
@@ -503,7 +505,7 @@ class FollowNode(Node):
 
     def tick_step(self) -> None:
         """Lock step: tick k of step k, at the sim's time k h_s (runner convention)."""
-        step, _, _, enc_seq, _, stamp_ns = self._step
+        step, stamp_ns = self._step[0], self._step[5]
         self._step = None
         self.tick_index = step
         self.sample_seq = step
