@@ -136,7 +136,9 @@ def _ticks(t_s: float, h_s: float) -> int:
     return max(1, int(round(t_s / h_s)))
 
 
-class _Build(NamedTuple):
+class PreparedSet(NamedTuple):
+    """A checked parameter set, its controller parts built (:meth:`FollowController.prepare`)."""
+
     params: ControllerParams
     follow: FollowParams
     ladrc: LADRC | None
@@ -145,7 +147,7 @@ class _Build(NamedTuple):
 
 
 def _build(params: ControllerParams | None, follow: FollowParams | None,
-           mode: str | None = None, gate: bool = True) -> _Build:
+           mode: str | None = None, gate: bool = True) -> PreparedSet:
     params = params if params is not None else ControllerParams()
     if follow is not None:
         params = replace(params, follow=follow)
@@ -156,7 +158,7 @@ def _build(params: ControllerParams | None, follow: FollowParams | None,
         check_gate(params)  # its loops against the configured axis (stability.*)
     fp = params.follow
     ladrc = LADRC(params)
-    return _Build(params, fp, ladrc, FollowPID(params.pid, params.h_s),
+    return PreparedSet(params, fp, ladrc, FollowPID(params.pid, params.h_s),
                   Interpolator(params.interp, params.h_s))
 
 
@@ -178,7 +180,7 @@ class FollowController:
                  follow: FollowParams | None = None, *, mode: str | None = None,
                  gate: bool = True) -> None:
         self._pending: list[tuple[str, dict]] = []
-        self._pending_build: _Build | None = None
+        self._pending_build: PreparedSet | None = None
         self._mode = mode  # 'ladrc' | 'pid' overrides follow.controller (CLI --controller)
         self._gate = gate
         self._install(_build(params, follow, mode, gate))
@@ -235,7 +237,7 @@ class FollowController:
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
 
     # ------------------------------------------------------------------ parameters
-    def _install(self, b: _Build) -> None:
+    def _install(self, b: PreparedSet) -> None:
         p, f = b.params, b.follow
         h = p.h_s
         self.params, self.follow_params = p, f
@@ -295,7 +297,20 @@ class FollowController:
         Raises ValueError (``ParameterError``) naming every problem if the set is invalid;
         the running set is then unchanged.
         """
-        self._pending_build = _build(params, follow, self._mode, self._gate)
+        self._pending_build = self.prepare(params, follow)
+
+    def prepare(self, params: ControllerParams, follow: FollowParams | None = None
+                ) -> PreparedSet:
+        """Check and build ``params`` for :meth:`set_prepared`; raises like :meth:`set_params`.
+
+        Touches no state of the running controller, so a node does it off its loop thread:
+        the build takes milliseconds, a tick has 0.5 ms (the follow node's parameter thread).
+        """
+        return _build(params, follow, self._mode, self._gate)
+
+    def set_prepared(self, prepared: PreparedSet) -> None:
+        """Queue a set built by :meth:`prepare`: it takes effect at the next tick, bumplessly."""
+        self._pending_build = prepared
 
     def _swap_params(self) -> None:
         b, self._pending_build = self._pending_build, None

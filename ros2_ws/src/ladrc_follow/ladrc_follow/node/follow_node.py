@@ -25,11 +25,13 @@ from dataclasses import dataclass
 import gc
 import json
 import math
+import queue
 import secrets
 import signal
 import sys
+import threading
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_msgs.msg import (
@@ -69,7 +71,7 @@ from std_msgs.msg import String
 import yaml
 
 from ..control.cap_table import RawToGap, TableError, TableLimits, load_table
-from ..control.follow import FollowController, FollowState, TickInput
+from ..control.follow import FollowController, FollowState, PreparedSet, TickInput
 from ..control.params import (
     DEFAULT_NODE_NAME,
     ControllerParams,
@@ -80,6 +82,7 @@ from ..control.params import (
 from ..control.schema import Entry, entries, field_problems, param
 from . import qos
 from .cdr import CdrPacker
+from .parameter_thread import ParameterThread
 from .realtime import apply_realtime
 
 LOOP_MODES = ('sync', 'deadline', 'timer', 'lockstep')
@@ -123,6 +126,15 @@ class NodeParams:
                               runtime=False)
     hardware_id: str = param('z_axis', '', 'hardware_id of the /diagnostics status (named '
                              'after the node: <namespace/name>: follow loop)', runtime=False)
+
+
+class _AcceptedSet(NamedTuple):
+    """A set the parameter thread accepted, everything built, for the loop to apply at a tick."""
+
+    params: ControllerParams
+    prepared: PreparedSet
+    text: str  # dump_params(params): the PARAMETERS event and run/parameters
+    table: tuple[RawToGap | None] | None  # (the new table,) when the set changes it
 
 
 _ROS_TYPE = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
@@ -180,7 +192,8 @@ class FollowNode(Node):
     """ROS 2 wrapper of :class:`FollowController` (see module docstring)."""
 
     def __init__(self) -> None:
-        super().__init__(DEFAULT_NODE_NAME)
+        # ros2 param: served by the parameter thread (main), not the loop (parameter_thread)
+        super().__init__(DEFAULT_NODE_NAME, start_parameter_services=False)
         self._declaring = True
         self._entries = {e.name: e for e in entries(ControllerParams())}
         node_entries = list(entries(NodeParams()))
@@ -201,7 +214,6 @@ class FollowNode(Node):
         # The whole set, as loaded from the parameter file, must be valid to start.
         # sensor.table_file: the raw -> gap table (docs/calibration.md), None = gap_mm as sent
         self.cap_table: RawToGap | None = None
-        self._pending_table: tuple[RawToGap | None] | None = None
         self._last_sample: tuple[float, float, bool, int, bool] | None = None
         try:
             self.params = self._params_from_ros({})
@@ -215,7 +227,11 @@ class FollowNode(Node):
         # every set reaching the controller passed the stability gate in params_from_dict (start
         # up and the parameter callback); gate=False keeps the analysis off the tick path
         self.controller = FollowController(self.params, gate=False)
-        self._pending_params: ControllerParams | None = None
+        # Sets accepted on the parameter thread, checked and built there; the loop applies
+        # them at its next tick. The lock makes "not following, so a table may change" and the
+        # queueing of the set one step against a queued start (taken by commands too).
+        self._accepted: queue.SimpleQueue[_AcceptedSet] = queue.SimpleQueue()
+        self._set_lock = threading.Lock()
         self.h_s = self.params.h_s
         self.period_ns = int(round(self.h_s * 1e9))
         self.loop_mode = self.node_params.loop
@@ -328,14 +344,14 @@ class FollowNode(Node):
         self.create_timer(self.node_params.diagnostics_period_s,
                           self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._publish_parameters()
+        self._publish_parameters(dump_params(self.params))
+        self.parameter_thread = ParameterThread(self)  # started by main, after apply_realtime
         # Pay the first-call costs of the diagnostics path (message types, publisher, numpy)
         # now: measured 11-12 ms on the first call, 0.6-0.9 ms afterwards, and a first call
         # in the loop stalled it long enough to trip a 5 ms drive watchdog.
         self._publish_diagnostics()
 
-    def _publish_parameters(self) -> None:
-        text = dump_params(self.params)
+    def _publish_parameters(self, text: str) -> None:
         self._publish_event(FollowEvent.PARAMETERS, text=text)
         self.pub_run_params.publish(String(data=text))
 
@@ -356,6 +372,7 @@ class FollowNode(Node):
                                  for k, v in values.items()})
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Check a set and build it for the loop (the parameter thread, never the loop's)."""
         if self._declaring:
             return SetParametersResult(successful=True)
         changes = {}
@@ -371,23 +388,47 @@ class FollowNode(Node):
         except Exception as exc:  # noqa: BLE001 - never let a parameter crash the node
             return SetParametersResult(successful=False,
                                        reason=f'rejected: {type(exc).__name__}: {exc}')
+        # against the values set so far (queued or applied): the node's parameters
         table_changed = 'sensor.table_file' in changes or (
-            candidate.sensor.table_file
-            and candidate.follow.collision_gap_mm != self.params.follow.collision_gap_mm)
-        if table_changed:
+            candidate.sensor.table_file and candidate.follow.collision_gap_mm
+            != self.get_parameter('follow.collision_gap_mm').value)
+        table = None
+        try:
+            if table_changed:
+                table = (self._load_table(candidate),)
+            accepted = _AcceptedSet(candidate, self.controller.prepare(candidate),
+                                    dump_params(candidate), table)
+        except ParameterError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        except Exception as exc:  # noqa: BLE001
+            return SetParametersResult(successful=False,
+                                       reason=f'rejected: {type(exc).__name__}: {exc}')
+        with self._set_lock:
             state = self.controller.projected_state  # a start queued this tick counts too
-            if state not in (FollowState.IDLE, FollowState.FAULT):
+            if table_changed and state not in (FollowState.IDLE, FollowState.FAULT):
                 return SetParametersResult(successful=False, reason=(
                     'sensor.table_file: a table changes only while not following (state '
                     f'{state.name}): stop follow first'))
-            try:
-                table = self._load_table(candidate)
-            except ParameterError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
-        self._pending_params = candidate  # applied at the next tick boundary
-        if table_changed:  # rclpy calls this once per parameter: never drop a pending table
-            self._pending_table = (table,)
+            self._accepted.put(accepted)  # applied at the next tick boundary
         return SetParametersResult(successful=True)
+
+    def _apply_accepted(self) -> None:
+        """Apply the sets accepted since the last tick, in order (the loop, at a tick)."""
+        last = None
+        while True:
+            try:
+                accepted = self._accepted.get_nowait()
+            except queue.Empty:
+                break
+            last = accepted
+            self.params = accepted.params
+            if accepted.table is not None:  # never drop a table of an earlier set
+                self.cap_table = accepted.table[0]
+                if self._last_sample is not None:  # the held sample, through the new table
+                    self._set_gap(*self._last_sample)
+        if last is not None:
+            self.controller.set_prepared(last.prepared)
+            self._publish_parameters(last.text)
 
     def _load_table(self, params: ControllerParams) -> RawToGap | None:
         """Return the checked table of ``sensor.table_file`` (None when empty).
@@ -532,14 +573,8 @@ class FollowNode(Node):
         start_mono = time.monotonic_ns()
         # header stamps: the node clock (ROS time)
         now_ns = self._clock.now().nanoseconds if stamp_ns is None else stamp_ns
-        if self._pending_params is not None:
-            self.params, self._pending_params = self._pending_params, None
-            self.controller.set_params(self.params)
-            if self._pending_table is not None:
-                self.cap_table, self._pending_table = self._pending_table[0], None
-                if self._last_sample is not None:  # the held sample, through the new table
-                    self._set_gap(*self._last_sample)
-            self._publish_parameters()
+        if not self._accepted.empty():
+            self._apply_accepted()
         if t_s is None:
             t_s = (start_mono - self._t0_ns) * 1e-9
             self.sample_seq = self.enc_seq
@@ -628,7 +663,8 @@ class FollowNode(Node):
         self.pub_events.publish(ev)
 
     def _command(self, response, kind: int, name: str, event: dict, **kwargs):
-        accepted, message = self.controller.command(name, **kwargs)
+        with self._set_lock:  # against a table change being accepted meanwhile
+            accepted, message = self.controller.command(name, **kwargs)
         response.accepted = bool(accepted)
         response.message = str(message)
         if accepted:
@@ -896,6 +932,9 @@ def main(argv: list[str] | None = None) -> int:
         for text in warnings:
             node.get_logger().warning(text)
         node.realtime = ', '.join(applied) or 'none'
+        # after apply_realtime; one below a real-time loop (node/parameter_thread.py)
+        fifo = any(a.startswith('SCHED_FIFO') for a in applied)
+        node.parameter_thread.start(np_.thread_priority - 1 if fifo else 0)
         node.get_logger().info(f'following loop started ({node.loop_mode}, '
                                f'{1.0 / node.h_s:.0f} Hz)')
         # Everything alive now (node, controller, generated code) leaves the collector's
@@ -917,6 +956,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     finally:
         if node is not None:
+            node.parameter_thread.close()
             node.destroy_node()
         rclpy.try_shutdown()
 
