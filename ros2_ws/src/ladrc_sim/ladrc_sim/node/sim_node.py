@@ -75,7 +75,7 @@ CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                            reliability=ReliabilityPolicy.BEST_EFFORT,
                            durability=DurabilityPolicy.VOLATILE)
 # lock step: reliable (ladrc_follow/node/qos.py, "Lock step")
-LOCKSTEP_HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+LOCKSTEP_HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000,
                                 reliability=ReliabilityPolicy.RELIABLE,
                                 durability=DurabilityPolicy.VOLATILE)
 LOCKSTEP_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,

@@ -51,6 +51,7 @@ from ..bags.bag import (
 )
 
 READER_DEPTH = 10000  # 5 s of a 2 kHz topic
+LOCKSTEP_READER_DEPTH = 20000  # 10 s: the lock-step writers' history (ladrc_follow.node.qos)
 
 
 def _qos_profile(topic: str, reliable: bool = False) -> Any:
@@ -58,7 +59,7 @@ def _qos_profile(topic: str, reliable: bool = False) -> Any:
 
     q = TOPIC_QOS[topic]
     if reliable and topic in SEQ_FIELD:
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=READER_DEPTH,
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_READER_DEPTH,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
     # The reader's own history must outlast a stall of this process (GIL held by the writer
