@@ -15,8 +15,14 @@ import numpy as np
 import pytest
 
 pytest.importorskip('ladrc_msgs', reason='needs the built workspace (make test)')
-from ladrc_msgs.msg import FollowEvent, FollowStatus, SimTruth, VelocityCommand  # noqa: E402
-from ladrc_msgs.srv import StartFollow, StopFollow  # noqa: E402
+from ladrc_msgs.msg import (  # noqa: E402
+    CapacitiveHeight,
+    FollowEvent,
+    FollowStatus,
+    SimTruth,
+    VelocityCommand,
+)
+from ladrc_msgs.srv import ResetFault, StartFollow, StopFollow  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import GetParameters, SetParameters  # noqa: E402
 from rosnodes import LATCHED, RELIABLE, NodeProcesses, Probe  # noqa: E402
@@ -258,3 +264,29 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis_tight):
     # locked about a second later; the probe's teardown waits for that (a teardown inside the
     # window can crash: tests/support/probe_node.py)
     probe.spin_for(3.0)
+
+
+@pytest.mark.parametrize('topic, msg_type, expect', [
+    ('axis/velocity_command', VelocityCommand, 'another publisher on /axis/velocity_command'),
+    ('axis/capacitive_height', CapacitiveHeight, '2 publishers on /axis/capacitive_height'),
+])
+def test_a_second_publisher_on_a_contract_topic_faults_the_controller(axis, topic, msg_type,
+                                                                      expect):
+    """The controller's topology check (node/topology.py): a FAULT naming the publishers."""
+    nodes, probe = axis
+    status = probe.record(FollowStatus, 'follow/status', fields=STATUS, qos=RELIABLE)
+    assert probe.spin_until(lambda: len(status) > 200 and status[-1][4] > 0, HANG_S), (
+        nodes.log('follow') + nodes.log('sim'))
+    assert status[-1][1] == S.STATE_IDLE
+    # one message, at rest (zero velocity, enable false): who publishes is the fault, not what
+    probe.publish(msg_type, topic, {}, qos=10)
+    assert probe.spin_until(lambda: status[-1][1] == S.STATE_FAULT, 20.0), (
+        status[-1], nodes.log('sim')[-1500:], nodes.log('follow')[-1500:])
+    reason = status[-1][6]
+    assert reason.startswith('topology: ') and expect in reason, reason
+    assert '/ladrc_probe' in reason or 'probe' in reason, reason
+    # while it lasts, a reset does not clear it
+    probe.call(ResetFault, 'follow/reset_fault', ResetFault.Request())
+    tick = status[-1][0]
+    assert probe.spin_until(lambda: status[-1][0] > tick + 50, HANG_S)
+    assert status[-1][1] == S.STATE_FAULT

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 
 pytest.importorskip('ladrc_msgs', reason='needs the built workspace (make test)')
 from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, SimTruth, VelocityCommand  # noqa: E402
+from ladrc_msgs.srv import ResetFault  # noqa: E402
 from rosnodes import NodeProcesses, Probe  # noqa: E402
 
 SCENARIOS = Path(__file__).parent / 'scenarios'
@@ -21,6 +23,11 @@ pytestmark = [pytest.mark.ros, pytest.mark.realtime]
 COMMAND_PERIOD_S = 0.002
 WATCHDOG_S = 0.05
 assert WATCHDOG_S > STALL_MAX_NORMAL_S + COMMAND_PERIOD_S
+
+
+# two commanders (docs/interfaces.md, "One commander")
+A = ('/test_commander_a', 11)
+B = ('/test_commander_b', 22)
 
 
 @pytest.fixture()
@@ -64,7 +71,7 @@ def test_sim_publishes_moves_and_stops_on_watchdog(sim):
 
     # Command +4 mm/s (up) for 0.5 s, then 0: the axis moves up by about 2 mm and stays.
     # (the probe process publishes them: one command per 2 ms for the time, seq counting on)
-    cmd = VelocityCommand(velocity_mm_s=4.0, enable=True)
+    cmd = VelocityCommand(velocity_mm_s=4.0, enable=True, commander=A[0], session=A[1])
     for velocity, seconds in ((4.0, 0.5), (0.0, 0.5)):
         cmd.velocity_mm_s = velocity
         cmd.seq += 1
@@ -93,3 +100,68 @@ def test_sim_publishes_moves_and_stops_on_watchdog(sim):
     assert max(still) - min(still) < 0.005  # stopped
     assert fbs[-1].drive_fault
     assert nodes.interrupt('sim') == 0
+
+
+def _command(probe, who, velocity_mm_s: float, seconds: float, enable: bool = True,
+             release: bool = False) -> None:
+    cmd = {'velocity_mm_s': velocity_mm_s, 'enable': enable, 'commander': who[0],
+           'session': who[1], 'release': release}
+    probe.publish(VelocityCommand, 'axis/velocity_command', cmd, qos=10,
+                  count=max(1, round(seconds / COMMAND_PERIOD_S)), period_s=COMMAND_PERIOD_S,
+                  increment=['seq'])
+
+
+def test_the_drive_executes_one_commander_and_faults_on_a_second(sim):
+    nodes, probe = sim
+    fbs = probe.record(AxisFeedback, 'axis/feedback')
+    assert probe.spin_until(lambda: len(fbs) > 200, 30.0), nodes.log('sim')
+    _command(probe, A, 4.0, 0.3)  # A commands: up at 4 mm/s
+    assert not fbs[-1].drive_fault and fbs[-1].velocity_mm_s > 3.0
+    top = fbs[-1].position_mm
+    # B sends one command, 50 mm/s down with enable: not executed; the drive quick-stops and
+    # faults naming both, and stays faulted while A goes on commanding (between the probe's
+    # calls the watchdog may trip first: the commander fault is looked for by its reason)
+    n = len(fbs)
+    _command(probe, B, -50.0, 0.0)
+    _command(probe, A, 4.0, 0.3)
+    probe.spin_for(0.05)
+    after = fbs[n:]
+    fault = next(f for f in after if 'second commander' in f.fault_reason)
+    assert 'second commander' in fault.fault_reason
+    assert '/test_commander_b' in fault.fault_reason and '/test_commander_a' in fault.fault_reason
+    assert all(f.drive_fault for f in after[after.index(fault):])
+    # the axis never moved down (B's command was not executed) and came to rest
+    assert min(f.position_mm for f in after) > top - 0.01
+    still = [f.position_mm for f in fbs[-100:]]
+    assert max(still) - min(still) < 0.005
+    # the explicit reset clears it; then the next commander takes the axis
+    res = probe.call(ResetFault, 'axis/reset_drive', ResetFault.Request())
+    assert res.accepted and 'second commander' in res.message
+    n = len(fbs)
+    _command(probe, A, 4.0, 0.3)
+    assert not any('commander' in f.fault_reason for f in fbs[n:])
+    assert fbs[-1].velocity_mm_s > 3.0 and not fbs[-1].drive_fault
+    # the drive's record of its commands' sources: B's never executed
+    _command(probe, A, 0.0, 0.05, enable=False)
+    assert nodes.interrupt('sim') == 0
+    log = nodes.log('sim')
+    assert 'drive fault: second commander' in log
+    summary = json.loads(log.split('commands by source: ')[1].splitlines()[0].rstrip(']').strip())
+    assert not any('test_commander_b' in k for k in summary['cycles_executed'])
+    assert any('test_commander_b' in k for k in summary['refused'])
+
+
+def test_a_release_hands_the_axis_over(sim):
+    nodes, probe = sim
+    fbs = probe.record(AxisFeedback, 'axis/feedback')
+    assert probe.spin_until(lambda: len(fbs) > 200, 30.0), nodes.log('sim')
+    _command(probe, A, 2.0, 0.2)
+    _command(probe, A, 0.0, 0.0, enable=False, release=True)  # A's last command
+    n = len(fbs)
+    _command(probe, B, 4.0, 0.3)  # B takes the axis: no commander fault
+    assert not any('commander' in f.fault_reason for f in fbs[n:])
+    assert fbs[-1].velocity_mm_s > 3.0 and not fbs[-1].drive_fault
+    # a command without any identity (a forgotten `ros2 topic pub`) is foreign
+    _command(probe, ('', 0), 0.0, 0.0, enable=False)
+    probe.spin_for(0.05)
+    assert fbs[-1].drive_fault and "'<no commander>'" in fbs[-1].fault_reason

@@ -84,8 +84,11 @@ from . import qos
 from .cdr import CdrPacker
 from .parameter_thread import ParameterThread
 from .realtime import apply_realtime
+from .topology import TOPOLOGY_PERIOD_S, topology_problems
 
 LOOP_MODES = ('sync', 'deadline', 'timer', 'lockstep')
+GAP_TOPIC, FEEDBACK_TOPIC = 'axis/capacitive_height', 'axis/feedback'
+COMMAND_TOPIC = 'axis/velocity_command'
 
 
 @dataclass(frozen=True)
@@ -287,14 +290,13 @@ class FollowNode(Node):
         control_in = qos.LOCKSTEP_INPUT if self.lockstep else qos.CONTROL_INPUT
         high_rate = qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE
         self.sub_gap = self.create_subscription(
-            CapacitiveHeight, 'axis/capacitive_height', self._on_gap, control_in)
+            CapacitiveHeight, GAP_TOPIC, self._on_gap, control_in)
         self.sub_fb = self.create_subscription(
-            AxisFeedback, 'axis/feedback', self._on_feedback, control_in)
+            AxisFeedback, FEEDBACK_TOPIC, self._on_feedback, control_in)
         if self.lockstep:
             self.sub_step = self.create_subscription(LockStep, 'sim/lockstep', self._on_step,
                                                      qos.LOCKSTEP_INPUT)
-        self.pub_cmd = self.create_publisher(VelocityCommand, 'axis/velocity_command',
-                                             high_rate)
+        self.pub_cmd = self.create_publisher(VelocityCommand, COMMAND_TOPIC, high_rate)
         self.pub_status = self.create_publisher(FollowStatus, 'follow/status', high_rate)
         self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS)
@@ -346,6 +348,10 @@ class FollowNode(Node):
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._publish_parameters(dump_params(self.params))
         self.parameter_thread = ParameterThread(self)  # started by main, after apply_realtime
+        # who else publishes on the contract topics: checked on the parameter thread, a FAULT
+        # at the next tick while it lasts (node/topology.py)
+        self.topology_problem = ''
+        self.parameter_thread.add_timer(TOPOLOGY_PERIOD_S, self._check_topology)
         # Pay the first-call costs of the diagnostics path (message types, publisher, numpy)
         # now: measured 11-12 ms on the first call, 0.6-0.9 ms afterwards, and a first call
         # in the loop stalled it long enough to trip a 5 ms drive watchdog.
@@ -411,6 +417,14 @@ class FollowNode(Node):
                     f'{state.name}): stop follow first'))
             self._accepted.put(accepted)  # applied at the next tick boundary
         return SetParametersResult(successful=True)
+
+    def _check_topology(self) -> None:
+        """Check the publishers around this controller (the parameter thread)."""
+        try:
+            problems = topology_problems(self, COMMAND_TOPIC, [GAP_TOPIC, FEEDBACK_TOPIC])
+        except Exception as exc:  # noqa: BLE001 - an unknown topology is a problem too
+            problems = [f'the topology check failed: {type(exc).__name__}: {exc}']
+        self.topology_problem = '; '.join(problems)
 
     def _apply_accepted(self) -> None:
         """Apply the sets accepted since the last tick, in order (the loop, at a tick)."""
@@ -539,10 +553,14 @@ class FollowNode(Node):
         self._step_wall_ns = time.monotonic_ns()
 
     def step_ready(self) -> bool:
-        """Lock step: a step is waiting and the samples it names have arrived."""
+        """Lock step: a step is waiting and the samples it names have arrived.
+
+        With a topology problem (another publisher may have superseded a sample) the step is
+        answered without them: the tick faults and commands zero.
+        """
         s = self._step
-        return s is not None and (not s[2] or self._gap_last_seq == s[1]) and (
-            not s[4] or self._enc_last_seq == s[3])
+        return s is not None and (bool(self.topology_problem) or (
+            (not s[2] or self._gap_last_seq == s[1]) and (not s[4] or self._enc_last_seq == s[3])))
 
     def tick_step(self) -> None:
         """Lock step: tick k of step k, at the sim's time k h_s (runner convention)."""
@@ -575,6 +593,8 @@ class FollowNode(Node):
         now_ns = self._clock.now().nanoseconds if stamp_ns is None else stamp_ns
         if not self._accepted.empty():
             self._apply_accepted()
+        if self.topology_problem and self.controller.state != FollowState.FAULT:
+            self.controller.fail(f'topology: {self.topology_problem}')
         if t_s is None:
             t_s = (start_mono - self._t0_ns) * 1e-9
             self.sample_seq = self.enc_seq
@@ -748,9 +768,9 @@ class FollowNode(Node):
         status.name = self._diag_name
         status.hardware_id = self.node_params.hardware_id
         state = getattr(ctl.state, 'name', str(ctl.state))
-        if ctl.fault_reason:
+        if ctl.fault_reason or self.topology_problem:
             status.level = DiagnosticStatus.ERROR
-            status.message = f'{state}: {ctl.fault_reason}'
+            status.message = f'{state}: {ctl.fault_reason or self.topology_problem}'
         elif stats['rate_hz'] < 0.99 / self.h_s:
             status.level = DiagnosticStatus.WARN
             status.message = f'{state}: loop rate {stats["rate_hz"]:.0f} Hz below target'
@@ -760,7 +780,7 @@ class FollowNode(Node):
         values = {k: f'{v:.6g}' for k, v in stats.items()}
         values.update({'state': state, 'fault_reason': ctl.fault_reason or '',
                        'ticks': str(self.tick_index), 'loop': self.loop_mode,
-                       'realtime': self.realtime,
+                       'realtime': self.realtime, 'topology': self.topology_problem or 'ok',
                        'cap_table': (self.cap_table.describe() if self.cap_table is not None
                                      else 'none (gap_mm as published)'),
                        'cap_table_out_of_range': str(self.cap_table.out_of_range

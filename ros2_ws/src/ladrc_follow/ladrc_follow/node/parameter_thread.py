@@ -27,6 +27,7 @@ import threading
 from typing import Any
 
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter_service import ParameterService
@@ -66,6 +67,11 @@ class ParameterThread:
         self.executor.add_node(self.server)
         self._priority = 0
         self._thread = threading.Thread(target=self._run, name='parameters', daemon=True)
+
+    def add_timer(self, period_s: float, callback) -> None:
+        """Run ``callback`` every ``period_s`` (steady clock) on this thread."""
+        self.server.create_timer(period_s, callback,
+                                 clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def start(self, fifo_priority: int = 0) -> None:
         """Start serving at SCHED_FIFO ``fifo_priority`` (0: the normal scheduler).

@@ -11,6 +11,11 @@ Like a drive, it stops the axis when commands stop: no command for longer than
 brakes at its maximum deceleration, not through its velocity lag) and a drive fault with a
 readable reason, until commands are back for ``watchdog_recover_s``.
 
+One commander (:mod:`.commander_lock`): the drive executes the commands of one commander only;
+the first foreign command quick-stops the axis and faults the drive with a reason naming both
+senders, until ``axis/reset_drive`` (``ResetFault``). Every drive cycle counts whose command it
+executed (``cycles_by_commander`` on /diagnostics and in the log at the end).
+
 A sample is published only when the runner has a fresh one: during a ``sensor_dropout`` or
 ``encoder_dropout`` nothing is sent, as a driver sends nothing (seq counts published samples).
 
@@ -25,7 +30,9 @@ step k, no transport delay (a live run acts one tick later).
 
 from __future__ import annotations
 
+from collections import Counter
 import gc
+import json
 import math
 from pathlib import Path
 import signal
@@ -60,6 +67,7 @@ from ..headless.scenario import (
     load_scenario,
 )
 from ..models.sensor import oscillator_hz_scalar
+from .commander_lock import CommanderLock, Identity, describe
 from .realtime import apply_realtime
 
 # The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
@@ -81,6 +89,11 @@ LOCKSTEP_HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000,
 LOCKSTEP_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                             reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.VOLATILE)
+# the drive's command input in lock step: deep, so that a foreign command (refused by the
+# commander lock) cannot supersede the commander's answer to the step
+LOCKSTEP_COMMAND_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                                    reliability=ReliabilityPolicy.RELIABLE,
+                                    durability=DurabilityPolicy.VOLATILE)
 
 SERVICES = {
     'start_follow': (StartFollow, 'follow/start'),
@@ -139,6 +152,9 @@ class DriveBridge:
         self.lockstep = node.lockstep
         self.lockstep_timeout_ns = int(node.lockstep_timeout_s * 1e9)
         self._answer: tuple[float, bool] | None = None  # lock step: the command answering seq
+        self.lock = CommanderLock()
+        self.cmd_source: Identity = ('', 0)  # whose command is held
+        self.cycles_by_commander: Counter = Counter()  # drive cycles executed, per source
 
     # ---- the runner's hooks -------------------------------------------------------------
     def truth(self, t_s: float, true_gap_mm: float, sheet_mm: float, nozzle_mm: float,
@@ -194,16 +210,23 @@ class DriveBridge:
             self.periods_us.append((now - self._last_tick_ns) * 1e-3)
         self._last_tick_ns = now
         self._answer = None
-        self.node.publish_samples(self.seq, tick, bool(tick.drive_fault),
-                                  DRIVE_FAULT_REASON if tick.drive_fault else '',
-                                  self.truth_values, stamp_ns=self.seq * self.period_ns)
+        fault, reason = self._drive_fault(tick)
+        self.node.publish_samples(self.seq, tick, fault, reason, self.truth_values,
+                                  stamp_ns=self.seq * self.period_ns)
         self._await(lambda: self._answer is not None,
                     f'no velocity command answering step {self.seq}')
         velocity, enable = self._answer
         self.seq += 1
-        if tick.drive_fault or not tick.drive_enabled or not enable:
+        if fault or not tick.drive_enabled or not enable:
             return 0.0
+        self.cycles_by_commander[self.cmd_source] += 1
         return velocity
+
+    def _drive_fault(self, tick) -> tuple[bool, str]:
+        """Return the drive's fault now: the commander lock's, the watchdog's or the scenario's."""
+        reason = self.lock.fault_reason or self.fault_reason or (
+            DRIVE_FAULT_REASON if tick.drive_fault else '')
+        return bool(reason), reason
 
     def step(self, tick) -> float:
         """Wait for this tick's deadline, publish its samples, return the latest command."""
@@ -255,23 +278,34 @@ class DriveBridge:
                     self._resumed_ns = now
                 elif now - self._resumed_ns > self.recover_ns:
                     self.fault_reason = ''
-        if self.fault_reason:
-            fault, reason = True, self.fault_reason
+        fault, reason = self._drive_fault(tick)
         node.publish_samples(self.seq, tick, fault, reason, self.truth_values)
         self.seq += 1
         if fault or not tick.drive_enabled or not self.cmd_enable:
             return 0.0
+        self.cycles_by_commander[self.cmd_source] += 1
         return self.cmd_velocity
 
     def quick_stop(self) -> bool:
-        """Return True while the watchdog holds the drive faulted: the axis brakes at a_max."""
-        return bool(self.fault_reason)
+        """Return True while the watchdog or the commander lock faults the drive (a_max brake)."""
+        return bool(self.fault_reason or self.lock.fault_reason)
 
     def on_command(self, msg: VelocityCommand) -> None:
         """Velocity command callback: keep the latest (zero-order hold).
 
-        Lock step: the command answering the step being waited for is its answer.
+        Lock step: the command answering the step being waited for is its answer. A command
+        the commander lock refuses is not executed (module docstring).
         """
+        faulted = bool(self.lock.fault_reason)
+        if not self.lock.admit(msg.commander, msg.session, msg.release):
+            if not faulted:  # the first foreign command: hold zero from now on
+                self.cmd_velocity, self.cmd_enable = 0.0, False
+                self.node.get_logger().error(f'drive fault: {self.lock.fault_reason}')
+            if (self.lockstep and self.lock.owner == (msg.commander, msg.session)
+                    and msg.sample_seq == self.seq and self._answer is None):
+                self._answer = (0.0, False)  # the step goes on, the drive faulted: at rest
+            return
+        self.cmd_source = (msg.commander, msg.session)
         if self.lockstep and msg.sample_seq == self.seq and self._answer is None:
             self._answer = (msg.velocity_mm_s, msg.enable)
         self.cmd_velocity = msg.velocity_mm_s
@@ -355,11 +389,29 @@ class SimNode(Node):
         return f'name: {self.scenario.name}\n'
 
     def attach(self, bridge: DriveBridge) -> None:
-        """Wire the bridge's command callback."""
+        """Wire the bridge's command callback and the drive's reset."""
         self.bridge = bridge
+        self.create_service(ResetFault, 'axis/reset_drive', self._srv_reset_drive)
         self.sub_cmd = self.create_subscription(
             VelocityCommand, 'axis/velocity_command', bridge.on_command,
-            LOCKSTEP_INPUT if self.lockstep else CONTROL_INPUT)
+            LOCKSTEP_COMMAND_INPUT if self.lockstep else CONTROL_INPUT)
+
+    def _srv_reset_drive(self, request, response):
+        """Clear the commander fault (the explicit reset) and the watchdog's (next commander)."""
+        b = self.bridge
+        was = b.lock.reset()
+        b.fault_reason = ''
+        response.accepted = True
+        response.message = f'drive reset ({was or "no commander fault"})'
+        self.get_logger().info(response.message)
+        return response
+
+    def commander_summary(self) -> dict:
+        """Return the drive's record of its commands' sources (cycles executed, refused)."""
+        b = self.bridge
+        out = b.lock.summary()
+        out['cycles_executed'] = {describe(k): v for k, v in b.cycles_by_commander.items()}
+        return out
 
     def send_follow_command(self, name: str, args: dict[str, Any]):
         """Call the controller's service for a scenario follow command; return the future."""
@@ -480,11 +532,14 @@ class SimNode(Node):
         # diagnostic_updater's naming: the node's fully qualified name, then the task
         st = DiagnosticStatus(name=f'{self.get_fully_qualified_name().lstrip("/")}: drive',
                               hardware_id='z_axis_sim')
-        st.level = DiagnosticStatus.ERROR if b.fault_reason else DiagnosticStatus.OK
-        st.message = b.fault_reason or 'running'
+        reason = b.lock.fault_reason or b.fault_reason
+        st.level = DiagnosticStatus.ERROR if reason else DiagnosticStatus.OK
+        st.message = reason or 'running'
         values = {'seq': b.seq, 'period_p99_us': round(p99, 1), 'late_ticks': b.late_ticks,
                   'commands_received': b.cmd_count, 'watchdog_trips': b.watchdog_trips,
-                  'scenario': self.scenario.name}
+                  'scenario': self.scenario.name,
+                  'commander': describe(b.lock.owner) if b.lock.owner else '',
+                  'commanders': json.dumps(self.commander_summary())}
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
@@ -547,6 +602,7 @@ def main(argv: list[str] | None = None) -> int:
         except LockstepAbort as exc:
             print(f'sim_node: {exc}', file=sys.stderr)
             return 3
+        node.get_logger().info(f'commands by source: {json.dumps(node.commander_summary())}')
         if bridge.running and not node.get_parameter('exit_at_end').value:
             while bridge.running:
                 executor.spin_once(timeout_sec=0.1)

@@ -245,8 +245,9 @@ class CalibrateNode(Node):
         return self.run is not None
 
     # ---- the tick ----------------------------------------------------------------------
-    def publish_command(self, velocity_mm_s: float, enable: bool) -> None:
-        """Publish one velocity command (zero when not enabled)."""
+    def publish_command(self, velocity_mm_s: float, enable: bool, release: bool = False
+                        ) -> None:
+        """Publish one velocity command (zero when not enabled; ``release``: the last one)."""
         sec, nsec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
         c = self._cmd
         c.header.stamp.sec, c.header.stamp.nanosec = sec, nsec
@@ -254,6 +255,7 @@ class CalibrateNode(Node):
         c.sample_seq = self.step_k if self.lockstep else max(self._fb_seq, 0)
         c.velocity_mm_s = float(velocity_mm_s) if enable else 0.0
         c.enable = bool(enable)
+        c.release = bool(release)
         self.pub_cmd.publish(c)
         self.cmd_seq += 1
 
@@ -420,9 +422,9 @@ def stop_commanding(node: CalibrateNode, reason: str) -> None:
         node.fail(reason)
         gc.enable()
     if node.cmd_seq:
-        for _ in range(3):
+        for i in range(3):
             try:
-                node.publish_command(0.0, False)
+                node.publish_command(0.0, False, release=i == 2)
             except Exception:  # noqa: BLE001 - the context may be gone
                 break
 

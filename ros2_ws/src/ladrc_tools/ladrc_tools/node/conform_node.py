@@ -34,6 +34,7 @@ import json
 import math
 import os
 from pathlib import Path
+import secrets
 import shlex
 import signal
 import subprocess
@@ -132,6 +133,10 @@ class ConformProbe:
         self._VelocityCommand = VelocityCommand
         self._cmd = VelocityCommand()
         self._cmd.header.frame_id = 'conform'
+        # one commander (docs/interfaces.md): the prober commands the axis under its own identity
+        # and releases it with its last command (a handover, docs/conformance.md)
+        self._cmd.commander = self.node.get_fully_qualified_name()
+        self._cmd.session = secrets.randbits(63) or 1
         self._pub = None
         self.command_qos = ''
         self.bag_path = Path(bag_path)
@@ -328,10 +333,22 @@ class ConformProbe:
         self.poll()
         self._ticks += 1
 
-    def stop_commands(self, seconds: float = 0.05) -> None:
-        """Send zero with enable=false for ``seconds`` (every exit path ends here)."""
+    def stop_commands(self, seconds: float = 0.05, release: bool = False) -> None:
+        """Send zero with enable=false for ``seconds`` (every exit path ends here).
+
+        ``release``: the last one releases the axis (the prober's last command).
+        """
         if self._pub is None:
             return
+        try:
+            self._stop_commands(seconds)
+        finally:
+            if release:
+                self._cmd.release = True
+                self._send(0.0, False)
+                self._cmd.release = False
+
+    def _stop_commands(self, seconds: float) -> None:
         self._deadline = time.monotonic_ns()
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -756,7 +773,7 @@ def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[
         finally:
             try:
                 if probe is not None:
-                    probe.stop_commands()
+                    probe.stop_commands(release=True)
                     rec = probe.finish()
             finally:
                 if proc is not None:
