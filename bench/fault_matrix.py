@@ -39,6 +39,7 @@ import math
 import os
 from pathlib import Path
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -52,7 +53,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tests' / 'support'))
 os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)  # the shipped loopback profile
+
+from ladrc_tools.bringup.bringup import loopback_settings  # noqa: E402
+
+os.environ.update(loopback_settings(os.environ))
 
 from ladrc_follow.control.follow import FollowController  # noqa: E402
 from ladrc_follow.control.params import (  # noqa: E402
@@ -499,6 +504,72 @@ def live_rows(load_s: float, clients_s: float) -> dict:
         out['node_crashes'] += crashed(nodes, 'follow', 'sim')
     finally:
         live.close()
+
+    # L4b: a second commander on axis/velocity_command, -50 mm/s with enable for 1 s while the
+    # axis follows, at 1 Hz, 100 Hz and 2 kHz (one commander: ladrc_sim/node/commander_lock.py)
+    from ladrc_msgs.msg import AxisFeedback
+
+    out['second_commander'] = {}
+    for rate_hz in (1, 100, 2000):
+        live = Live(f'fault_probe_4b_{rate_hz}')
+        try:
+            nodes, probe = live.nodes, live.probe
+            status, truth, cmds = start_axis(live)
+            fbs = probe.record(AxisFeedback, 'axis/feedback',
+                               fields=['seq', 'drive_fault', 'fault_reason'])
+            probe.spin_for(0.5)
+            n_truth = len(truth)
+            intruder = {'velocity_mm_s': -50.0, 'enable': True, 'commander': '/intruder',
+                        'session': 99}
+            probe.publish(VelocityCommand, 'axis/velocity_command', intruder, qos=10,
+                          count=rate_hz, period_s=1.0 / rate_hz, increment=['seq'])
+            probe.spin_for(0.5)
+            min_gap = min(g for _, g, _ in truth[n_truth:])
+            nodes.interrupt('sim')
+            log = nodes.log('sim')
+            first = re.search(r'drive fault at cycle (\d+): (second commander[^\n]*)', log)
+            fault_seq = next((f[0] for f in fbs if 'second commander' in f[2]), None)
+            summary = json.loads(log.split('commands by source: ')[1].splitlines()[0].strip())
+            foreign_executed = sum(v for k, v in summary['cycles_executed'].items()
+                                   if 'intruder' in k)
+            names_both = bool(first) and '/intruder' in first.group(2) and \
+                '/ladrc_follow' in first.group(2)
+            cycles = (fault_seq - int(first.group(1))) if first and fault_seq is not None \
+                else None
+            follow_reason = next((s[2] for s in status if s[1] == FAULT), '')
+            row(f'second commander at {rate_hz} Hz (-50 mm/s, 1 s)', contact=min_gap <= 0.0,
+                min_true_gap_mm=round(min_gap, 3), foreign_cycles_executed=foreign_executed,
+                fault_names_both=names_both, fault_after_cycles=cycles,
+                follow_fault=follow_reason[:90])
+            out['second_commander'][rate_hz] = {
+                'contact': min_gap <= 0.0, 'min_true_gap_mm': min_gap,
+                'foreign_cycles_executed': foreign_executed, 'fault_names_both': names_both,
+                'fault_after_cycles': cycles, 'follow_fault': follow_reason}
+            out['node_crashes'] += crashed(nodes, 'follow')
+        finally:
+            live.close()
+
+    # L4c: a second publisher on each sensor topic: the controller's topology check
+    from ladrc_msgs.msg import CapacitiveHeight as _Gap
+
+    out['second_sensor'] = {}
+    for topic, msg_type in (('axis/capacitive_height', _Gap), ('axis/feedback', AxisFeedback)):
+        live = Live(f'fault_probe_4c_{topic.split("/")[1]}')
+        try:
+            nodes, probe = live.nodes, live.probe
+            status, truth, cmds = start_axis(live)
+            n_truth = len(truth)
+            # one message at a seq the driver has not reached: the topology is the fault
+            probe.publish(msg_type, topic, {'seq': 10 ** 9}, qos=10)
+            probe.spin_until(lambda st=status: st[-1][1] == FAULT, 10.0)
+            reason = next((s[2] for s in status if s[1] == FAULT), '')
+            row(f'second publisher on {topic}', fault=bool(reason),
+                topology_reason='topology:' in reason, reason=reason[:100],
+                contact=bool(contacts_of(truth[n_truth:])))
+            out['second_sensor'][topic] = reason
+            out['node_crashes'] += crashed(nodes, 'follow', 'sim')
+        finally:
+            live.close()
 
     # L5: live parameter fuzz over SetParameters
     live = Live('fault_probe_5')

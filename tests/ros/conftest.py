@@ -21,7 +21,11 @@ if importlib.util.find_spec('rclpy') is None:
 # Domain ids 1..101 for tests (0 is the default users run on; 102+ may collide with ports of
 # other tools). Set before any rclpy.init so every context and child process uses them.
 os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 101)
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+from ladrc_tools.bringup.bringup import loopback_settings  # noqa: E402
+
+# this machine only: the shipped loopback profile, whatever the environment says (docs/safety.md)
+os.environ.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)
+os.environ.update(loopback_settings(os.environ))
 os.environ.pop('ROS_LOCALHOST_ONLY', None)
 
 

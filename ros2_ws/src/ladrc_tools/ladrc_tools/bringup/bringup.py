@@ -20,6 +20,7 @@ import signal
 import subprocess
 import sys
 import time
+from typing import Mapping
 
 
 @dataclass
@@ -148,11 +149,42 @@ def executable_path(package: str, executable: str) -> str:
                             'scripts/setup-env)')
 
 
+LOOPBACK_PROFILE = 'fastdds_localhost.xml'
+"""The shipped Fast DDS profile (config/): shared memory and UDP on 127.0.0.1 only."""
+MIDDLEWARE_KEYS = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE',
+                   'FASTRTPS_DEFAULT_PROFILES_FILE')
+"""What a tool's own process takes over from the environment of the nodes it starts."""
+
+
+def loopback_profile() -> Path:
+    """Return the path of the installed loopback-only Fast DDS profile."""
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory('ladrc_tools')) / 'config' / LOOPBACK_PROFILE
+
+
+def loopback_settings(env: Mapping[str, str]) -> dict[str, str]:
+    """Return the middleware settings of a node set that is not reachable from the network.
+
+    The shipped profile (docs/safety.md, "Not reachable from the network"), with the rmw's own
+    discovery range left to it (``SYSTEM_DEFAULT``): the ``LOCALHOST`` range of rmw_fastrtps
+    adds a UDP transport of its own on every interface. A profile of the user's in
+    ``FASTRTPS_DEFAULT_PROFILES_FILE`` stays as it is, with their range: that is how a set-up
+    opens exactly the interface it needs (docs/real-axis.md). Empty: nothing to change.
+    """
+    profile = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
+    if profile and Path(profile).name != LOOPBACK_PROFILE:
+        return {}
+    return {'FASTRTPS_DEFAULT_PROFILES_FILE': profile or str(loopback_profile()),
+            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
+
+
 def isolated_env(domain_id: int | None = None) -> dict[str, str]:
-    """Environment of the node processes: own DDS domain, localhost-only discovery."""
+    """Environment of the node processes: own DDS domain, this machine only (loopback)."""
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(domain_id if domain_id is not None else random.randint(1, 101))
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # with a profile of the user's
+    env.update(loopback_settings(env))
     env.pop('ROS_LOCALHOST_ONLY', None)
     env.setdefault('PYTHONUNBUFFERED', '1')
     return env

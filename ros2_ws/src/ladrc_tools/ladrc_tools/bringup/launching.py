@@ -27,8 +27,13 @@ def declare_arguments(arguments: dict[str, tuple[str, str]]) -> list[Any]:
 
 def launch_nodes(specs: list[NodeSpec]) -> dict[str, Any]:
     """One launch_ros ``Node`` per spec, by node name."""
+    import os
+
     from launch_ros.actions import Node
 
+    from .bringup import loopback_settings
+
+    env = loopback_settings(os.environ)  # this machine only (bringup.loopback_settings)
     nodes = {}
     for spec in specs:
         parameters: list[Any] = [spec.params_file] if spec.params_file else []
@@ -36,7 +41,8 @@ def launch_nodes(specs: list[NodeSpec]) -> dict[str, Any]:
             parameters.append(dict(spec.parameters))
         nodes[spec.name] = Node(package=spec.package, executable=spec.executable,
                                 name=spec.name, output='screen', parameters=parameters,
-                                ros_arguments=list(spec.ros_args) or None)
+                                ros_arguments=list(spec.ros_args) or None,
+                                additional_env=env or None)
     return nodes
 
 

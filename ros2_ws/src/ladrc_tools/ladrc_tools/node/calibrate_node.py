@@ -452,7 +452,12 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
 
     import yaml
 
-    from ..bringup.bringup import executable_path, interrupt_process, isolated_env
+    from ..bringup.bringup import (
+        MIDDLEWARE_KEYS,
+        executable_path,
+        interrupt_process,
+        isolated_env,
+    )
     from ..commissioning.calibration import sim_scenario
 
     values = {**motion}
@@ -462,8 +467,7 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
     sim_proc = None
     tmp = None
     if sim is not None:
-        os.environ.update({k: v for k, v in isolated_env().items()
-                           if k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')})
+        os.environ.update({k: v for k, v in isolated_env().items() if k in MIDDLEWARE_KEYS})
         os.environ.pop('ROS_LOCALHOST_ONLY', None)
         tmp = tempfile.TemporaryDirectory(prefix='ladrc-calibrate-')
         scenario = Path(tmp.name) / 'calibrate_sensor.yaml'

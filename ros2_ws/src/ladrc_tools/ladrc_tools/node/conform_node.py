@@ -45,7 +45,12 @@ from typing import Callable
 import numpy as np
 
 from ..bags.bag import BagError, BagWriter, open_bag
-from ..bringup.bringup import executable_path, interrupt_process, isolated_env
+from ..bringup.bringup import (
+    MIDDLEWARE_KEYS,
+    executable_path,
+    interrupt_process,
+    isolated_env,
+)
 from ..commissioning.conformance import (
     COMMAND_TOPIC,
     CONTRACT_TYPES,
@@ -699,8 +704,9 @@ def run_conform(opts: ConformOptions, log: Callable[[str], None] | None = None
     if own_driver:
         env = isolated_env(opts.domain_id)
         # this process joins the driver's isolated domain (localhost discovery)
-        for key in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE'):
-            os.environ[key] = env[key]
+        for key in MIDDLEWARE_KEYS:
+            if key in env:
+                os.environ[key] = env[key]
         os.environ.pop('ROS_LOCALHOST_ONLY', None)
     else:
         env = dict(os.environ)
