@@ -298,7 +298,7 @@ def live_rows(load_s: float, clients_s: float) -> dict:
     from rosnodes import NodeProcesses, Probe, ProbeError
 
     out: dict = {'node_crashes': 0, 'probe_crashes': 0}
-    domains = iter(random.sample(range(1, 102), 12))  # one per live setup (recorder: 3)
+    domains = iter(random.sample(range(1, 102), 20))  # one per live setup (recorder: 3)
 
     class Live:
         """The processes and probe (a process of its own) of one row, on its own DDS domain.
@@ -517,10 +517,13 @@ def live_rows(load_s: float, clients_s: float) -> dict:
             status, truth, cmds = start_axis(live)
             fbs = probe.record(AxisFeedback, 'axis/feedback',
                                fields=['seq', 'drive_fault', 'fault_reason'])
-            probe.spin_for(0.5)
             n_truth = len(truth)
             intruder = {'velocity_mm_s': -50.0, 'enable': True, 'commander': '/intruder',
                         'session': 99}
+            # its publisher first, matched before the commands (a best-effort message to an
+            # unmatched reader is lost); the controller may see it in the graph meanwhile
+            probe.publish(VelocityCommand, 'axis/velocity_command', intruder, qos=10, count=0)
+            probe.spin_for(1.0)
             probe.publish(VelocityCommand, 'axis/velocity_command', intruder, qos=10,
                           count=rate_hz, period_s=1.0 / rate_hz, increment=['seq'])
             probe.spin_for(0.5)
@@ -559,8 +562,8 @@ def live_rows(load_s: float, clients_s: float) -> dict:
             nodes, probe = live.nodes, live.probe
             status, truth, cmds = start_axis(live)
             n_truth = len(truth)
-            # one message at a seq the driver has not reached: the topology is the fault
-            probe.publish(msg_type, topic, {'seq': 10 ** 9}, qos=10)
+            # a publisher that has sent nothing: only the topology check can see it
+            probe.publish(msg_type, topic, {'seq': 10 ** 9}, qos=10, count=0)
             probe.spin_until(lambda st=status: st[-1][1] == FAULT, 10.0)
             reason = next((s[2] for s in status if s[1] == FAULT), '')
             row(f'second publisher on {topic}', fault=bool(reason),
