@@ -171,6 +171,9 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
         'ticks': int(ticks.size),
         'period_p50_us': p['p50'], 'period_p99_us': p['p99'], 'period_p999_us': p['p999'],
         'period_max_us': p['max'],
+        # the tick's own work (inputs -> core -> command), the status' compute time
+        'compute_p50_us': float(np.percentile(compute, 50)),
+        'compute_p99_us': float(np.percentile(compute, 99)),
         'periods_over_2ms': int((period > 2000.0).sum()),
         'overruns': int(st['overrun'][keep].sum()),
         # over consecutive ticks: samples the sim sent that no tick used (never received by the
