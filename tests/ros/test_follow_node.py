@@ -67,9 +67,8 @@ def _axis(timeout_s: float | None):
         raise
 
 
-@pytest.fixture()
-def axis():
-    nodes, probe = _axis(None)
+def _running(timeout_s: float | None):
+    nodes, probe = _axis(timeout_s)
     try:
         yield nodes, probe
     finally:
@@ -80,27 +79,18 @@ def axis():
 
 
 @pytest.fixture()
+def axis():
+    yield from _running(None)
+
+
+@pytest.fixture()
 def axis_tight():
-    nodes, probe = _axis(KILL_TIMEOUT_S)
-    try:
-        yield nodes, probe
-    finally:
-        try:
-            probe.close()
-        finally:
-            nodes.close()
+    yield from _running(KILL_TIMEOUT_S)
 
 
 @pytest.fixture()
 def axis_rt():
-    nodes, probe = _axis(RT_TIMEOUT_S)
-    try:
-        yield nodes, probe
-    finally:
-        try:
-            probe.close()
-        finally:
-            nodes.close()
+    yield from _running(RT_TIMEOUT_S)
 
 
 def _set_params(probe: Probe, values: dict[str, float]) -> list:
