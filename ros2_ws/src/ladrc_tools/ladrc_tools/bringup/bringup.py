@@ -150,7 +150,7 @@ def executable_path(package: str, executable: str) -> str:
 
 
 LOOPBACK_PROFILE = 'fastdds_localhost.xml'
-"""The shipped Fast DDS profile (config/): shared memory and UDP on 127.0.0.1 only."""
+"""The shipped Fast DDS profile (config/): UDP on 127.0.0.1 only, no shared memory."""
 MIDDLEWARE_KEYS = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE',
                    'FASTRTPS_DEFAULT_PROFILES_FILE')
 """What a tool's own process takes over from the environment of the nodes it starts."""
