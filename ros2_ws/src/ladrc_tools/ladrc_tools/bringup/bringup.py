@@ -157,10 +157,13 @@ MIDDLEWARE_KEYS = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE',
 
 
 def loopback_profile() -> Path:
-    """Return the path of the installed loopback-only Fast DDS profile."""
-    from ament_index_python.packages import get_package_share_directory
+    """Return the path of the loopback-only Fast DDS profile (installed, else the source's)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
 
-    return Path(get_package_share_directory('ladrc_tools')) / 'config' / LOOPBACK_PROFILE
+        return Path(get_package_share_directory('ladrc_tools')) / 'config' / LOOPBACK_PROFILE
+    except (ImportError, LookupError, ValueError):  # no ROS install (the noble library check)
+        return Path(__file__).resolve().parents[2] / 'config' / LOOPBACK_PROFILE
 
 
 def loopback_settings(env: Mapping[str, str]) -> dict[str, str]:
