@@ -15,6 +15,8 @@ Defects (each breaks what a real driver gets wrong, and nothing else):
 ``seq_gaps``       ``seq`` skips one number every 200 samples (both topics)
 ``reliable_only``  RELIABLE publishers and a RELIABLE command subscription
 ``ignore_enable``  ``enable=false`` is ignored (the velocity is executed)
+``any_commander``  commands from any sender are executed (no commander lock: a second
+                   commander's commands interleave with the first's, no fault)
 ``speed_x3``       the drive moves three times the commanded speed (b0 = 3; trips the kit's
                    speed bound in the excitation)
 ``one_fault``      one transient drive fault (quick stop, cleared 0.1 s later) 0.6 s after the
@@ -48,7 +50,7 @@ from rclpy.qos import (  # noqa: E402
 )
 
 DEFECTS = ('wrong_sign', 'gap_um', 'future_stamps', 'no_watchdog', 'seq_gaps', 'reliable_only',
-           'ignore_enable', 'speed_x3', 'one_fault')
+           'ignore_enable', 'any_commander', 'speed_x3', 'one_fault')
 FAULT_AFTER_TICKS = 1200  # 0.6 s after the first command: in the kit's 'up' test
 FUTURE_NS = 50_000_000
 SEQ_SKIP_EVERY = 200
@@ -79,6 +81,8 @@ def make_classes(defects: set[str]):
             if 'no_watchdog' in defects:
                 self.watchdog_ticks = 2**62  # never trips: the last command stays in force
             self._ticks_commanded = 0
+            if 'any_commander' in defects:
+                self.lock.admit = lambda commander, session, release: True
 
         def step(self, tick) -> float:
             if 'one_fault' in defects and self.cmd_count:

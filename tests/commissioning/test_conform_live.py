@@ -61,12 +61,14 @@ EXPECTED = {
     # a gap in µm reads beyond any sensor's range: refused before anything moves (it could
     # hide a nozzle already below the minimum gap), so every rule that needs motion is not run
     'gap_um': {'enable_false_holds', 'motion_direction', 'motion_speed', 'velocity_feedback',
-               'gap_tracks_encoder', 'watchdog_fault', 'watchdog_stop', 'motion_bag'},
+               'gap_tracks_encoder', 'one_commander', 'watchdog_fault', 'watchdog_stop',
+               'motion_bag'},
     'future_stamps': {'stamps_not_future'},
     'no_watchdog': {'watchdog_fault', 'watchdog_stop'},
     'seq_gaps': {'seq_increments'},
     'reliable_only': {'qos_publishers', 'qos_command_input'},
     'ignore_enable': {'enable_false_holds'},
+    'any_commander': {'one_commander'},
 }
 # A reliable writer at 2 kHz sometimes holds samples back for ~200 ms (the reliability
 # protocol; docs/interfaces.md measured the same): its timing rules may fail with it.
@@ -92,6 +94,9 @@ def test_the_sim_node_passes_every_rule(driver_conformance):  # noqa: F811
     # the sim counts its own cycles: one more than the timeout's, then the fault
     w_ms = WATCHDOG_S * 1e3
     assert w_ms <= r['watchdog_fault'].figure <= w_ms + 2.0
+    # the drive cycle after the one that received the second commander's first command
+    assert r['one_commander'].figure <= 2.5
+    assert "'/ladrc_conform_second_commander'" in r['one_commander'].reason
     assert r.extra['driver_exit_code'] == 0           # stopped by SIGINT, cleanly
     assert _gone(r.extra['driver_pid'])
     out = r.output
@@ -100,6 +105,7 @@ def test_the_sim_node_passes_every_rule(driver_conformance):  # noqa: F811
     names = [s['name'] for s in data['segments']]
     assert names[:5] == ['passive', 'enable', 'settle', 'up', 'down']
     assert 'excitation' in names and names[-2:] == ['watchdog', 'silence']
+    assert names[-6:-2] == ['second commander', 'fault holds', 'reset call', 'after reset']
     ex = next(s for s in data['segments'] if s['name'] == 'excitation')
     with open_bag(out / 'bag') as bag:
         cmd = bag.columns('/axis/velocity_command', ['velocity_mm_s', 'enable'])
@@ -144,8 +150,8 @@ def test_a_surprise_aborts_with_zero_and_enable_false(driver_conformance):  # no
     r = driver_conformance(broken('speed_x3'), '--test-travel-mm', '0.5', *WATCHDOG,
                            domain_id=DOMAIN)
     assert r.aborted.startswith('speed beyond the bound'), r.aborted
-    assert set(r.rules_failed) == {'motion_speed', 'motion_bag', 'watchdog_fault',
-                                   'watchdog_stop'}, r.summary()
+    assert set(r.rules_failed) == {'motion_speed', 'motion_bag', 'one_commander',
+                                   'watchdog_fault', 'watchdog_stop'}, r.summary()
     assert abs(r['motion_speed'].figure - 3.0) < 0.2
     assert 'speed beyond the bound' in r['watchdog_fault'].reason  # not run, and why
     data = json.loads((r.output / 'conform.json').read_text())

@@ -11,12 +11,16 @@ import dataclasses
 import json
 
 from ladrc_tools.commissioning.conformance import (
+    AFTER_RESET,
     COMMAND_TOPIC,
     DOWN,
     ENABLE,
+    FAULT_HOLDS,
     FEEDBACK_TOPIC,
     GAP_TOPIC,
     PASSIVE,
+    RESET_CALL,
+    SECOND_COMMANDER,
     RULE_NAMES,
     RULES,
     SILENCE,
@@ -47,8 +51,15 @@ V = 2.0
 PLAN = [(PASSIVE, 0.0, 1.0, 0.0, False, False), (ENABLE, 1.0, 1.3, V, False, True),
         ('settle', 1.3, 1.5, 0.0, True, True), (UP, 1.5, 2.0, V, True, True),
         (DOWN, 2.0, 2.5, -V, True, True), ('settle', 2.5, 2.7, 0.0, True, True),
-        (WATCHDOG, 2.7, 3.0, V, True, True), (SILENCE, 3.0, 3.2, 0.0, False, False)]
-END_S = 3.3
+        (SECOND_COMMANDER, 2.7, 2.72, 0.0, True, True), (FAULT_HOLDS, 2.72, 2.92, 0.0, True, True),
+        (RESET_CALL, 2.92, 2.95, 0.0, True, True), (AFTER_RESET, 2.95, 3.2, 0.0, True, True),
+        (WATCHDOG, 3.2, 3.5, V, True, True), (SILENCE, 3.5, 3.7, 0.0, False, False)]
+END_S = 3.8
+LAST_CMD_S = 3.5
+OWNER, SECOND = '/ladrc_conform', '/ladrc_conform_second_commander'
+LOCK_REASON = (f"second commander: a velocity command from '{SECOND}' (session 7) while "
+               f"'{OWNER}' (session 5) commands the axis; not executed, quick stop until the "
+               'drive is reset')
 
 
 def _ns(t_s):
@@ -58,7 +69,9 @@ def _ns(t_s):
 def synthetic(*, sign=1.0, gap_scale=1.0, future_s=0.0, watchdog=True, seq_skip=0,
               reliable=False, ignore_enable=False, speed_scale=1.0, velocity_scale=1.0,
               rate_hz=2000.0, age_s=1e-4, fault_delay_s=0.0055, fault_reason='watchdog: no '
-              'command for 11 cycles', bag_missing=0, seed=0):
+              'command for 11 cycles', bag_missing=0, commander_lock=True,
+              lock_reason=LOCK_REASON, lock_clears_s=None, reset='accepted: drive reset',
+              seed=0):
     """Return a Recording of a synthetic drive (clean unless a defect is asked for)."""
     rng = np.random.default_rng(seed)
     h = 1.0 / rate_hz
@@ -68,13 +81,13 @@ def synthetic(*, sign=1.0, gap_scale=1.0, future_s=0.0, watchdog=True, seq_skip=
     for _name, a, b, v, en, commanded in PLAN:
         if commanded and (en or ignore_enable):
             v_cmd[(t >= a) & (t < b)] = v
-    last_cmd = 3.0
+    last_cmd = LAST_CMD_S
     t_fault = last_cmd + fault_delay_s
     v_act = sign * speed_scale * v_cmd
     if watchdog:
-        v_act[(t >= 3.0) & (t < t_fault)] = sign * speed_scale * V  # the ZOH until the trip
+        v_act[(t >= last_cmd) & (t < t_fault)] = sign * speed_scale * V  # the ZOH until the trip
     else:
-        v_act[t >= 3.0] = sign * speed_scale * V
+        v_act[t >= last_cmd] = sign * speed_scale * V
     pos = 5.0 + np.concatenate(([0.0], np.cumsum(v_act[:-1]) * h))
     pos = np.round(pos / 0.001) * 0.001  # 1 µm encoder
     gap = (pos - 5.0 + 5.0 + rng.normal(0.0, 0.003, n)) * gap_scale
@@ -83,10 +96,21 @@ def synthetic(*, sign=1.0, gap_scale=1.0, future_s=0.0, watchdog=True, seq_skip=
     seq = np.arange(n) + 100
     seq = seq + (seq // seq_skip if seq_skip else 0)
     fault = (t >= t_fault) if watchdog else np.zeros(n, dtype=bool)
+    reasons = np.where(fault, fault_reason, '').astype(object)
+    second = (t >= 2.7) & (t < 2.72)
+    if commander_lock:  # faulted from the drive cycle after the first foreign command to reset
+        lock = (t >= 2.7 + h) & (t < (2.95 if lock_clears_s is None else 2.7 + lock_clears_s))
+        fault |= lock
+        reasons[lock] = lock_reason
+    else:  # executed: the second commander's upward command is the latest in each cycle
+        v_act[second] = sign * speed_scale * V
+        pos = 5.0 + np.concatenate(([0.0], np.cumsum(v_act[:-1]) * h))
+        pos = np.round(pos / 0.001) * 0.001
+        gap = (pos - 5.0 + 5.0 + rng.normal(0.0, 0.003, n)) * gap_scale
     fb = FeedbackSamples(recv_ns=recv, stamp_ns=stamp, seq=seq, pub_seq=np.arange(n) + 1,
                          position_mm=pos, velocity_mm_s=v_act * velocity_scale,
                          drive_enabled=np.ones(n, bool), drive_fault=fault,
-                         fault_reason=[fault_reason if f else '' for f in fault])
+                         fault_reason=list(reasons))
     gp = GapSamples(recv_ns=recv + 1000, stamp_ns=stamp, seq=seq, pub_seq=np.arange(n) + 1,
                     gap_mm=gap, valid=np.ones(n, bool), status=np.zeros(n, int))
     rel = 'RELIABLE' if reliable else 'BEST_EFFORT'
@@ -100,14 +124,15 @@ def synthetic(*, sign=1.0, gap_scale=1.0, future_s=0.0, watchdog=True, seq_skip=
                                                 rel, 'VOLATILE')]})
     segments = [Segment(name, int(_ns(a)), int(_ns(b)), v, en, commanded)
                 for name, a, b, v, en, commanded in PLAN]
-    tc = np.arange(1.0, 3.0, H)
+    tc = np.arange(1.0, LAST_CMD_S, H)
     en = ~((tc >= 1.0) & (tc < 1.3))
     counts = {'/' + GAP_TOPIC: n, '/' + FEEDBACK_TOPIC: n, '/' + COMMAND_TOPIC: len(tc)}
     bag = BagCheck('bag', True, counts={k: c - (bag_missing if k.endswith('feedback') else 0)
                                         for k, c in counts.items()}, expected=counts)
     plan = dataclasses.replace(Plan(), excitation=None)
     return Recording(graph, gp, fb, _ns(tc), np.interp(tc, t, v_cmd), en, segments, plan,
-                     bag=bag)
+                     bag=bag, commander=OWNER, second_commander=SECOND,
+                     second_send_ns=_ns(np.arange(2.7, 2.72, H)), reset_answer=reset)
 
 
 def failed(rec, tol=None):
@@ -125,6 +150,7 @@ def test_a_clean_drive_passes_every_rule_with_its_figures():
     # 5.5 ms after the last command: 11 or 12 drive cycles of 0.5 ms
     assert 5.4 <= result['watchdog_fault'].figure <= 6.6
     assert result['watchdog_stop'].figure <= 7.0
+    assert 0.5 <= result['one_commander'].figure <= 1.5  # the second cycle after the first send
     assert result['stamp_age'].figure < 1.0
 
 
@@ -136,6 +162,7 @@ def test_a_clean_drive_passes_every_rule_with_its_figures():
     ('seq_gaps', {'seq_skip': 200}, {'seq_increments'}),
     ('reliable_only', {'reliable': True}, {'qos_publishers', 'qos_command_input'}),
     ('ignore_enable', {'ignore_enable': True}, {'enable_false_holds'}),
+    ('any_commander', {'commander_lock': False}, {'one_commander'}),
 ])
 def test_each_defect_fails_exactly_its_rules(defect, kwargs, expected):
     assert failed(synthetic(**kwargs)) == expected, defect
@@ -159,6 +186,26 @@ def test_figures_of_the_defects():
     assert r['enable_false_holds'].figure == pytest.approx(0.6, abs=0.02)
     r = evaluate(synthetic(reliable=True))
     assert 'never arrive' in r['qos_command_input'].reason
+    r = evaluate(synthetic(commander_lock=False))
+    assert 'no drive_fault' in r['one_commander'].reason
+    assert 'moved 40 µm' in r['one_commander'].reason  # 20 ms at 2 mm/s, executed
+
+
+@pytest.mark.parametrize('kwargs, why', [
+    ({'lock_reason': 'drive fault'}, "does not name '/ladrc_conform' and "
+                                     "'/ladrc_conform_second_commander'"),
+    ({'lock_reason': LOCK_REASON.replace(SECOND, '/other')}, 'does not name '
+                                                             "'/ladrc_conform_second_commander'"),
+    ({'lock_clears_s': 0.1}, 'the fault cleared by itself 100 ms after'),
+    ({'reset': ''}, 'axis/reset_drive: not called'),
+    ({'reset': 'no axis/reset_drive service'}, 'axis/reset_drive: no axis/reset_drive service'),
+    ({'reset': 'refused: no'}, 'axis/reset_drive: refused: no'),
+    ({'lock_clears_s': 0.48}, 'still faulted 50 ms before the end of the 250 ms after the reset'),
+])
+def test_one_commander_fails_with_its_reason(kwargs, why):
+    r = evaluate(synthetic(**kwargs))
+    assert r.rules_failed == ['one_commander']
+    assert why in r['one_commander'].reason
 
 
 @pytest.mark.parametrize('kwargs, expected', [
@@ -272,13 +319,13 @@ def test_a_run_without_motion_fails_the_motion_rules_with_the_reason():
     rec.not_run = 'the drive reports a fault: e-stop'
     r = evaluate(rec)
     motion = {'enable_false_holds', 'motion_direction', 'motion_speed', 'velocity_feedback',
-              'gap_tracks_encoder', 'watchdog_fault', 'watchdog_stop'}
+              'gap_tracks_encoder', 'one_commander', 'watchdog_fault', 'watchdog_stop'}
     assert set(r.rules_failed) == motion
     assert all('e-stop' in r[n].reason for n in motion)
     rec = synthetic()
     rec.segments = rec.segments[:6]
     rec.aborted = 'speed beyond the bound'
-    assert failed(rec) == {'watchdog_fault', 'watchdog_stop'}
+    assert failed(rec) == {'one_commander', 'watchdog_fault', 'watchdog_stop'}
 
 
 def test_drive_ready_and_fault_during_the_run():

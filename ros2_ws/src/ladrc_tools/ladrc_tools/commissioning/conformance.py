@@ -42,6 +42,12 @@ STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION, STATUS_FAULT = 0, 1, 2, 3
 # Segments of a run, in the order the prober plays them (docs/conformance.md, "The run").
 PASSIVE, ENABLE, UP, DOWN, EXCITATION, WATCHDOG, SILENCE = (
     'passive', 'enable', 'up', 'down', 'excitation', 'watchdog', 'silence')
+# the one-commander test (docs/interfaces.md, "One commander"): a second commander's commands
+# while the prober commands zero, the prober's zero alone (the fault must hold), the drive's
+# reset service called, the prober's zero again (the drive must be ready)
+SECOND_COMMANDER, FAULT_HOLDS, RESET_CALL, AFTER_RESET = (
+    'second commander', 'fault holds', 'reset call', 'after reset')
+RESET_SERVICE = 'axis/reset_drive'
 
 
 # ---- what the prober recorded ---------------------------------------------------------------
@@ -283,12 +289,17 @@ class Recording:
     not_run: str = ''   # why the motion tests were never started ('' = they were)
     notes: list[str] = field(default_factory=list)
     bag: BagCheck | None = None
+    commander: str = ''  # the prober's commander name (VelocityCommand.commander)
+    second_commander: str = ''  # the name the second commander's commands carried
+    second_send_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    reset_answer: str = ''  # what the drive's reset service answered ('' = not called)
 
     def __post_init__(self) -> None:
         self.command_send_ns = _i64(self.command_send_ns)
         self.command_velocity_mm_s = np.asarray(self.command_velocity_mm_s,
                                                 dtype=float).reshape(-1)
         self.command_enable = np.asarray(self.command_enable, dtype=bool).reshape(-1)
+        self.second_send_ns = _i64(self.second_send_ns)
 
     def segment(self, name: str) -> Segment | None:
         """Return the segment called ``name`` (None: not played)."""
@@ -323,6 +334,8 @@ class Tolerances:
     watchdog_allowance_s: float = 0.002     # + the command's transport and the drive's cycle
     stop_allowance_s: float = 0.010         # braking to rest after the watchdog trips
     rest_mm: float = 0.005                  # "at rest": within 5 µm (5 encoder counts)
+    commander_fault_s: float = 0.0025       # a second commander: the next drive cycle (0.5 ms)
+    #                                         + the watchdog's transport allowance (2 ms)
 
     def as_dict(self) -> dict[str, float]:
         """Return the tolerances as a JSON-friendly dict."""
@@ -925,6 +938,75 @@ def rule_motion_bag(rec: Recording, tol: Tolerances) -> RuleResult:
                    if not problems else '; '.join(problems))
 
 
+def rule_one_commander(rec: Recording, tol: Tolerances) -> RuleResult:
+    """Check the drive executes one commander: a second one is refused, faults, until reset.
+
+    While the prober commands zero (enabled), a second publisher sends upward commands under
+    another commander name. The drive must not move, must fault within
+    ``commander_fault_s`` (in its own cycles, from the first sample it latched after the
+    first foreign send, as the watchdog rule counts), with a reason naming both commanders;
+    the fault must hold while the prober alone commands again (no self-clearing), and clear
+    after the reset service is called.
+    """
+    names = (SECOND_COMMANDER, FAULT_HOLDS, RESET_CALL, AFTER_RESET)
+    missing = rec.why_missing(*names)
+    if missing:
+        return _fail('one_commander', 'ms', missing)
+    foreign, holds, _, after = (rec.segment(n) for n in names)
+    fb = rec.feedback
+    if not len(rec.second_send_ns) or not len(fb):
+        return _fail('one_commander', 'ms', 'no second commander sent, or no feedback')
+    first = int(rec.second_send_ns[0])
+    age_ns = int(max(0.0, float(np.median(fb.recv_ns - fb.stamp_ns))))
+    idx = np.flatnonzero(fb.window(first + 1 + age_ns, holds.end_ns))
+    if len(idx) < 5:
+        return _fail('one_commander', 'ms', f'too few feedback samples after the second '
+                     f'commander ({len(idx)})')
+    problems = []
+    p = fb.position_mm[np.flatnonzero(fb.window(foreign.start_ns, holds.end_ns))]
+    moved = float(np.ptp(p)) if len(p) else 0.0
+    if moved > tol.rest_mm:
+        problems.append(f'the axis moved {moved * 1e3:.3g} µm on the second commander\'s '
+                        'upward commands (executed)')
+    faulted = idx[fb.drive_fault[idx]]
+    latency = math.nan
+    if not len(faulted):
+        problems.append("no drive_fault after the second commander's commands")
+    else:
+        i = int(faulted[0])
+        cycles = int(fb.seq[i] - fb.seq[idx[0]]) + 1
+        latency = cycles * _median_period_s(fb)
+        reason = fb.fault_reason[i]
+        if latency > tol.commander_fault_s:
+            problems.append(f'drive_fault {cycles} drive cycles ({_ms(latency)}) after the '
+                            f'first foreign command (later than {_ms(tol.commander_fault_s)})')
+        absent = [n for n in (rec.commander, rec.second_commander) if n not in reason]
+        if absent:
+            problems.append(f'the fault reason {reason!r} does not name '
+                            + ' and '.join(repr(n) for n in absent))
+        held = np.flatnonzero(fb.window(max(holds.start_ns + age_ns, int(fb.recv_ns[i]) + 1),
+                                        holds.end_ns))
+        cleared = held[~fb.drive_fault[held]]
+        if len(cleared):
+            problems.append(f'the fault cleared by itself {_ms((fb.recv_ns[cleared[0]] - first) * 1e-9)} '
+                            'after the second commander while only the prober commanded (it '
+                            'must hold until the reset)')
+    if not rec.reset_answer.startswith('accepted'):
+        problems.append(f'the reset service {RESET_SERVICE}: {rec.reset_answer or "not called"}')
+    else:
+        tail = np.flatnonzero(fb.window(after.end_ns - int(0.05e9), after.end_ns))
+        if not len(tail) or fb.drive_fault[tail].any():
+            problems.append('still faulted 50 ms before the end of the '
+                            f'{_ms((after.end_ns - after.start_ns) * 1e-9)} after the reset')
+    if problems:
+        return RuleResult('one_commander', False, latency * 1e3 if math.isfinite(latency)
+                          else None, 'ms', ' '.join('; '.join(problems).split()))
+    return _result('one_commander', True, latency * 1e3, 'ms',
+                   f'second commander {rec.second_commander!r} refused: drive_fault after '
+                   f'{_ms(latency)}, no motion ({moved * 1e3:.3g} µm), held until the reset, '
+                   'ready after it')
+
+
 @dataclass(frozen=True)
 class Rule:
     """One rule: name, what it checks, its tolerance (text from the tolerances), why."""
@@ -1022,6 +1104,13 @@ RULES: tuple[Rule, ...] = (
          lambda t, p: f'≤ {(t.watchdog_timeout_s + t.stop_allowance_s) * 1e3:g} ms, rest '
                       f'within {t.rest_mm * 1e3:g} µm',
          'quick stop at the maximum deceleration after the watchdog'),
+    Rule('one_commander', rule_one_commander,
+         "a second commander's (upward) commands while the prober commands: not executed, "
+         'drive_fault naming both, held until the reset service, ready after it',
+         lambda t, p: f'fault ≤ {t.commander_fault_s * 1e3:g} ms, travel ≤ '
+                      f'{t.rest_mm * 1e3:g} µm',
+         'a second publisher at 1 kHz drove the nozzle 0.49 mm into the sheet; the drive is '
+         'where a command is executed, so it is where one commander is enforced'),
     Rule('motion_bag', rule_motion_bag,
          'the bag of everything seen and sent, read back: every message there, the excitation '
          'segment included',

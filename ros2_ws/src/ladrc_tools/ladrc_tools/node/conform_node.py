@@ -61,7 +61,12 @@ from ..commissioning.conformance import (
     FEEDBACK_TOPIC,
     GAP_TOPIC,
     H_S,
+    AFTER_RESET,
+    FAULT_HOLDS,
     PASSIVE,
+    RESET_CALL,
+    RESET_SERVICE,
+    SECOND_COMMANDER,
     SILENCE,
     STATUS_OK,
     UP,
@@ -90,6 +95,12 @@ SPEED_WINDOW_NS = 10_000_000  # the speed bound is judged over >= 10 ms of encod
 MAX_PLAUSIBLE_GAP_MM = 50.0  # beyond any capacitive height sensor: a reading not in mm
 # aborts that a stall of the host causes as well as a driver: the motion tests are repeated
 RETRYABLE = ('stale data', 'drive fault during the test')
+# the one-commander test (rule one_commander): how long each part lasts
+SECOND_COMMANDER_S = 0.02  # 40 upward commands under another name, interleaved with ours
+FAULT_HOLDS_S = 0.2  # longer than the sim's self-clearing of a watchdog fault (0.1 s)
+RESET_WAIT_S = 1.0  # the reset service's answer
+AFTER_RESET_S = 0.2
+SECOND_COMMANDER_NAME = '/ladrc_conform_second_commander'
 BAG_TOPICS = (GAP_TOPIC, FEEDBACK_TOPIC, COMMAND_TOPIC, '/diagnostics', 'run/scenario')
 
 
@@ -142,7 +153,25 @@ class ConformProbe:
         # and releases it with its last command (a handover, docs/conformance.md)
         self._cmd.commander = self.node.get_fully_qualified_name()
         self._cmd.session = secrets.randbits(63) or 1
+        # the second commander of the one-commander test: another writer, another name
+        self._second = VelocityCommand()
+        self._second.header.frame_id = 'conform'
+        self._second.commander = SECOND_COMMANDER_NAME
+        self._second.session = secrets.randbits(63) or 1
+        self.second_send: list[int] = []
+        self.reset_answer = ''
+        from ladrc_msgs.srv import ResetFault
+        from rclpy.executors import SingleThreadedExecutor
+
+        # the reset client on a node of its own, spun by its own executor: the prober's node
+        # has no executor (its readers are taken from directly, see the module docstring)
+        self._ResetFault = ResetFault
+        self._reset_node = rclpy.create_node(NODE_NAME + '_reset', context=context)
+        self._reset_client = self._reset_node.create_client(ResetFault, RESET_SERVICE)
+        self._reset_executor = SingleThreadedExecutor(context=context)
+        self._reset_executor.add_node(self._reset_node)
         self._pub = None
+        self._pub2 = None
         self.command_qos = ''
         self.bag_path = Path(bag_path)
         self._bag_items: list[tuple[str, bytes, int]] = []  # (topic, CDR, bag time ns)
@@ -296,6 +325,7 @@ class ConformProbe:
                                 'ran with a writer it accepts')
             self.notes.append(f'commands sent {self.command_qos}')
         self._pub = self.node.create_publisher(self._VelocityCommand, COMMAND_TOPIC, profile)
+        self._pub2 = self.node.create_publisher(self._VelocityCommand, COMMAND_TOPIC, profile)
         end = time.monotonic() + 5.0
         while self._pub.get_subscription_count() == 0 and time.monotonic() < end:
             self._wait(0.02)
@@ -324,6 +354,23 @@ class ConformProbe:
         self.c['send'].append(now)
         self.c['vel'].append(v)
         self.c['enable'].append(bool(enable))
+        self._enqueue(COMMAND_TOPIC, data, now)
+        self.enqueued['/' + COMMAND_TOPIC] += 1
+
+    def _send_second(self, velocity_mm_s: float) -> None:
+        """Send one command of the second commander (its own writer and name)."""
+        from rclpy.serialization import serialize_message
+
+        vmax = self.plan.max_speed_mm_s
+        now = self._now_ns()
+        m = self._second
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(now, 1_000_000_000)
+        m.seq = len(self.second_send)
+        m.velocity_mm_s = float(min(vmax, max(-vmax, velocity_mm_s)))
+        m.enable = True
+        data = serialize_message(m)
+        self._pub2.publish(data)
+        self.second_send.append(now)
         self._enqueue(COMMAND_TOPIC, data, now)
         self.enqueued['/' + COMMAND_TOPIC] += 1
 
@@ -544,7 +591,58 @@ class ConformProbe:
             ex = p.excitation
             ok = (self._command(EXCITATION, self._excitation, True, ex.amplitude_mm_s)
                   and self._constant('settle', settle, 0.0, True))
-        return ok and self._constant(WATCHDOG, p.watchdog_run_s, v, True) and self._silence()
+        return (ok and self._one_commander()
+                and self._constant(WATCHDOG, p.watchdog_run_s, v, True) and self._silence())
+
+    def _one_commander(self) -> bool:
+        """Play the one-commander test (rule ``one_commander``); False if it was aborted.
+
+        The prober keeps commanding zero (enabled) throughout; the second commander's
+        commands go upward (away from the sheet) at the test speed, so a drive that executes
+        them moves where the travel bound still holds.
+        """
+        v = self.plan.test_speed_mm_s
+        self._fault_expected = True
+        start = 0
+        for _ in range(max(1, int(round(SECOND_COMMANDER_S / H_S)))):
+            self._tick()
+            problem = self._check()
+            if problem:
+                return self._abort(problem)
+            self._send(0.0, True)
+            self._send_second(v)
+            start = start or self.c['send'][-1]
+        self.segments.append(Segment(SECOND_COMMANDER, start, self.second_send[-1], 0.0, True))
+        if not self._constant(FAULT_HOLDS, FAULT_HOLDS_S, 0.0, True):
+            return False
+        start = self._now_ns()
+        future = None
+        if self._reset_client.service_is_ready():
+            future = self._reset_client.call_async(self._ResetFault.Request())
+        end = time.monotonic() + RESET_WAIT_S
+        while future is not None and not future.done() and time.monotonic() < end:
+            self._tick()
+            problem = self._check()
+            if problem:
+                return self._abort(problem)
+            self._send(0.0, True)
+            self._reset_executor.spin_once(timeout_sec=0.0)
+        if future is None:
+            self.reset_answer = f'no {RESET_SERVICE} service'
+        elif not future.done():
+            self.reset_answer = f'no answer within {RESET_WAIT_S:g} s'
+        else:
+            r = future.result()
+            self.reset_answer = f'{"accepted" if r.accepted else "refused"}: {r.message}'
+        self.segments.append(Segment(RESET_CALL, start, self._now_ns(), 0.0, True))
+        if not self._constant(AFTER_RESET, AFTER_RESET_S, 0.0, True):
+            return False
+        self._fault_expected = False
+        f = self.f
+        if f['fault'][-1]:
+            return self._abort(f'the drive is still faulted after the reset '
+                               f'({self.reset_answer}): {f["reason"][-1] or "no reason"}')
+        return True
 
     def _retry(self, attempt: int) -> str:
         """Prepare another attempt after a timing abort; return why not ('' = go)."""
@@ -602,7 +700,9 @@ class ConformProbe:
                              drive_enabled=f['enabled'], drive_fault=f['fault'],
                              fault_reason=f['reason'])
         return Recording(self.graph, gap, fb, c['send'], c['vel'], c['enable'], self.segments,
-                         self.plan, self.aborted, self.not_run, self.notes, check)
+                         self.plan, self.aborted, self.not_run, self.notes, check,
+                         commander=self._cmd.commander, second_commander=self._second.commander,
+                         second_send_ns=self.second_send, reset_answer=self.reset_answer)
 
     def _write_bag(self) -> None:
         """Write what was seen and sent, in time order, as a rosbag2 bag (mcap)."""
@@ -617,7 +717,9 @@ class ConformProbe:
                 writer.write_raw(topic, stamp_ns, data)
 
     def destroy(self) -> None:
-        """Destroy the node."""
+        """Destroy the nodes."""
+        self._reset_executor.shutdown(timeout_sec=0.0)
+        self._reset_node.destroy_node()
         self.node.destroy_node()
 
 
