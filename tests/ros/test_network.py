@@ -19,6 +19,7 @@ from ladrc_msgs.srv import StartFollow  # noqa: E402
 from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs  # noqa: E402
 from rosnodes import Probe  # noqa: E402
 from sockets import exposed, sockets  # noqa: E402
+import sros2_policy  # noqa: E402
 
 SCENARIOS = Path(__file__).parent / 'scenarios'
 pytestmark = pytest.mark.ros
@@ -45,6 +46,11 @@ def test_bringup_binds_no_socket_outside_loopback(monkeypatch, tmp_path):
         assert all(opened.values()), opened  # each process has its sockets, on loopback:
         outside = {name: exposed(p.pid) for name, p in up.procs.items()}
         assert not any(outside.values()), outside
+        # the SROS2 policy (docs/safety.md) allows every endpoint the node set uses
+        graph = probe.graph()
+        assert {'/ladrc_sim', '/ladrc_follow', '/recorder'} <= set(graph), sorted(graph)
+        missing = sros2_policy.uncovered(graph, sros2_policy.profiles())
+        assert not missing, '\n'.join(missing)
     finally:
         try:
             probe.close()

@@ -272,6 +272,22 @@ class ProbeNode:
                            timeout_s)
         return res['results']
 
+    def op_graph(self) -> dict:
+        """Every other node's endpoints: {'/ns/name': {'publishers': [[name, [types]]], ...}}."""
+        node = self.node
+        mine = {node.get_fully_qualified_name(), self.service_node.get_fully_qualified_name()}
+        out = {}
+        for name, ns in node.get_node_names_and_namespaces():
+            full = f'{ns.rstrip("/")}/{name}'
+            if full in mine:
+                continue
+            out[full] = {
+                'publishers': node.get_publisher_names_and_types_by_node(name, ns),
+                'subscriptions': node.get_subscriber_names_and_types_by_node(name, ns),
+                'services': node.get_service_names_and_types_by_node(name, ns),
+                'clients': node.get_client_names_and_types_by_node(name, ns)}
+        return to_plain(out)
+
     def op_publish(self, type: str, topic: str, fields: dict | None = None,
                    qos=10, count: int = 1, period_s: float = 0.0,
                    increment: list[str] | None = None) -> int:

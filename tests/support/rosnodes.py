@@ -391,6 +391,14 @@ class Probe:
         self.poll()
         return n
 
+    def graph(self) -> dict:
+        """Every other node on the domain: its publishers, subscriptions, services, clients.
+
+        ``{'/ns/name': {'publishers': [[topic, [type, ...]], ...], 'subscriptions': ...,
+        'services': ..., 'clients': ...}}``, as the graph holds them now.
+        """
+        return self._request('graph', wait_s=30.0)
+
     # -- services -------------------------------------------------------------------------------
     def call(self, srv_type, name: str, request=None, timeout_s: float = 10.0) -> Msg:
         """Call a service (request: an instance or a dict of its fields); return the response.

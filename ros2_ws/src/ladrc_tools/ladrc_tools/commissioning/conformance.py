@@ -966,7 +966,7 @@ def rule_one_commander(rec: Recording, tol: Tolerances) -> RuleResult:
     p = fb.position_mm[np.flatnonzero(fb.window(foreign.start_ns, holds.end_ns))]
     moved = float(np.ptp(p)) if len(p) else 0.0
     if moved > tol.rest_mm:
-        problems.append(f'the axis moved {moved * 1e3:.3g} µm on the second commander\'s '
+        problems.append(f"the axis moved {moved * 1e3:.3g} µm on the second commander's "
                         'upward commands (executed)')
     faulted = idx[fb.drive_fault[idx]]
     latency = math.nan
@@ -988,9 +988,9 @@ def rule_one_commander(rec: Recording, tol: Tolerances) -> RuleResult:
                                         holds.end_ns))
         cleared = held[~fb.drive_fault[held]]
         if len(cleared):
-            problems.append(f'the fault cleared by itself {_ms((fb.recv_ns[cleared[0]] - first) * 1e-9)} '
-                            'after the second commander while only the prober commanded (it '
-                            'must hold until the reset)')
+            since = _ms((fb.recv_ns[cleared[0]] - first) * 1e-9)
+            problems.append(f'the fault cleared by itself {since} after the second commander '
+                            'while only the prober commanded (it must hold until the reset)')
     if not rec.reset_answer.startswith('accepted'):
         problems.append(f'the reset service {RESET_SERVICE}: {rec.reset_answer or "not called"}')
     else:
