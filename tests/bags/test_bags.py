@@ -6,7 +6,6 @@ import csv
 import json
 import math
 import os
-import time
 
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
