@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, is_dataclass
 import json
+import math
 import os
 from pathlib import Path
 import shutil
@@ -741,8 +742,11 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     custom = {'ladrc.source': 'headless', 'ladrc.scenario': str(getattr(sc, 'name', ''))}
     if controller:
         custom['ladrc.controller'] = controller
+    # no flush or metadata rewrite on the wall clock: the bag is renamed into place only when
+    # complete, and chunks cut by size alone make the same run the same bytes however fast
+    # the machine writes (a 0.25 s flush cut a loaded run's chunks elsewhere)
     writer = BagWriter(tmp, storage=storage, split_s=None, custom_data=custom, typestore=store,
-                       name=path.name)
+                       name=path.name, flush_s=math.inf, metadata_s=math.inf)
     try:
         for topic in ('axis/capacitive_height', 'axis/feedback', 'axis/velocity_command',
                       'follow/status', 'follow/events', 'sim/truth', 'run/parameters',
