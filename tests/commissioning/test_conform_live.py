@@ -129,10 +129,10 @@ def test_each_broken_driver_fails_exactly_its_rules(driver_conformance, defect):
     r = driver_conformance(broken(defect), '--no-excitation', *WATCHDOG, domain_id=DOMAIN)
     failed = set(r.rules_failed)
     why = f'{r.summary()}\naborted: {r.aborted}\nnotes: {r.notes}'
-    if defect == 'reliable_only':
-        assert EXPECTED[defect] <= failed <= EXPECTED[defect] | RELIABLE_TIMING, why
-    else:
-        assert failed == EXPECTED[defect], why
+    # the timing rules measure this Python driver as it ran: on a loaded machine it may truly
+    # miss them (gap_um: 1824 Hz in a loaded fresh-clone run); every other rule is exact
+    assert EXPECTED[defect] <= failed <= EXPECTED[defect] | RELIABLE_TIMING, why
+    assert failed - RELIABLE_TIMING == EXPECTED[defect] - RELIABLE_TIMING, why
     assert _gone(r.extra['driver_pid'])
     if defect == 'gap_um':
         assert 'not in mm (µm?); nothing is moved' in r.not_run, why
@@ -159,17 +159,19 @@ def test_a_surprise_aborts_with_zero_and_enable_false(driver_conformance):  # no
     with open_bag(r.output / 'bag') as bag:
         times = [t for t, _ in bag.raw('/axis/velocity_command')]
         cmd = bag.columns('/axis/velocity_command', ['velocity_mm_s', 'enable'])
-        fb = [(t, m.position_mm) for t, m in bag.messages('/axis/feedback')]
+        fb = [(m.seq, m.position_mm) for _, m in bag.messages('/axis/feedback')]
     after = [i for i, t in enumerate(times) if t > aborted['end_ns']]
     # from the abort on: only zero with enable=false, for the hold time (0.3 s at 2 kHz)
     assert len(after) >= 500
     assert all(cmd['velocity_mm_s'][i] == 0.0 and not cmd['enable'][i] for i in after)
     assert max(times) <= aborted['end_ns'] + 1e9  # and then silence: no more motion tests
-    # the speed over 10 ms windows never went far past the bound (8 mm/s) before the stop
-    t = [x[0] for x in fb]
+    # the speed over 10 ms windows never went far past the bound (8 mm/s) before the stop:
+    # on the driver's sample clock (seq × 0.5 ms), not the recorder's receive times, which
+    # bunch on a loaded machine (17.7 mm/s "measured" from them in a loaded fresh-clone run)
+    seq = [x[0] for x in fb]
     p = [x[1] for x in fb]
-    speeds = [abs(p[j] - p[i]) / ((t[j] - t[i]) * 1e-9) for i in range(0, len(t) - 20, 5)
-              for j in (i + 20,) if t[j] > t[i]]
+    speeds = [abs(p[j] - p[i]) / ((seq[j] - seq[i]) * 0.5e-3) for i in range(0, len(seq) - 20, 5)
+              for j in (i + 20,) if seq[j] > seq[i]]
     assert max(speeds) < 14.0
 
 

@@ -44,6 +44,7 @@ KILL_TIMEOUT_S = 0.01  # the product's default stale limit (docs/parameters.md)
 # The real-time parameter test's stale limit and drive watchdog: beyond one stall (STALL_MAX_S),
 # so that what it asserts is the loop's period, not whether a stall happened to trip a limit.
 RT_TIMEOUT_S = 0.025
+BUILD_MIN_S = 0.010  # the shortest hold of one set built on the loop (bench/repro/RESULTS.md)
 # A bound on a hang, not on speed: lock step is slower on a loaded machine, never different.
 HANG_S = 300.0
 
@@ -217,12 +218,12 @@ def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):
     assert len(window) > 1000
     assert all(s[1] == S.STATE_LADRC for s in window), next(
         s for s in window if s[1] != S.STATE_LADRC)
-    # On the loop each request held it 30 ms or more (more than the limits), once per request;
-    # here no period reaches the limits, and at most one exceeds a stall of this machine class
-    # (one unexplained 16.3 ms period was seen in 7 runs, docs/follow-node.md)
+    # On the loop each request held it 10-21 ms, once per request (BUILD_MIN_S): here fewer
+    # periods than requests reach that. No absolute bound: another process on a loaded machine
+    # stalls the loop 14-37 ms now and then (two loaded fresh-clone runs), and a build on the
+    # loop thread would take longer there still.
     periods_s = sorted(s[2] * 1e-6 for s in window)
-    assert periods_s[-1] < RT_TIMEOUT_S, periods_s[-5:]
-    assert sum(p > STALL_MAX_S for p in periods_s) <= 1, periods_s[-5:]
+    assert sum(p >= BUILD_MIN_S for p in periods_s) < len(values), periods_s[-len(values):]
     assert 'watchdog:' not in nodes.log('sim')
     assert _get_param(probe, 'law.kp') == pytest.approx(values[-1])
 

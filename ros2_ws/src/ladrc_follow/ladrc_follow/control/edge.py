@@ -268,6 +268,8 @@ class EdgeGuard:
         self._r1 = self._r2 = math.nan  # the last two fresh readings
         self._d2_ms = math.nan  # low-passed square of their second difference
         self._d2_n = 0
+        self._c_ref = h_s / (p.ref_tau_s + h_s)  # backward-Euler low-pass, as pid.py
+        self.surface_ref_mm = 0.0  # the far drop's slow reference of the apparent surface
         warm_up()
         self.reset()
 
@@ -314,12 +316,30 @@ class EdgeGuard:
         for name in ('_z', '_r', '_t', '_r1', '_r2', '_d2_ms', '_d2_n', 'surface_mm_s',
                      '_slow_mm_s', 'probing', 'verified_mm',
                      '_probe_ticks', '_strikes', '_doubt_mm', '_doubt_t', '_doubt_n', 'doubts',
-                     'aborted', '_at_start', 'gain', 'gain_se', 'fit_rms_mm', 'reason'):
+                     'aborted', '_at_start', 'gain', 'gain_se', 'fit_rms_mm', 'reason',
+                     'surface_ref_mm'):
             setattr(self, name, getattr(old, name))
         self._found = deque(old._found)
         self.verifying = False
         if old.verifying:
             self._start_verify(at_start=old._at_start)
+
+    def far_drop(self, enc_mm: float, gap_mm: float) -> str:
+        """Return why the apparent surface fell too far ('' if not): seed ``CheckForOutPanelEdge``.
+
+        The apparent surface ``encoder − gap`` more than ``drop_mm`` below its reference (a
+        low-pass over ``ref_tau_s``, set where the PID takes over) is out of the panel; 0 turns
+        the check off. The reference follows the surface on every tick that passes.
+        """
+        drop = self.params.drop_mm
+        if drop > 0.0:
+            sf = enc_mm - gap_mm
+            ref = self.surface_ref_mm
+            if sf < ref - drop:
+                return (f'out of panel edge: apparent sheet surface fell {ref - sf:.2f} mm '
+                        f'below its reference (limit {drop:g} mm)')
+            self.surface_ref_mm = ref + self._c_ref * (sf - ref)
+        return ''
 
     @property
     def down_cap_mm_s(self) -> float:
