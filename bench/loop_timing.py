@@ -1,11 +1,11 @@
 """Closed-loop timing of the follow node against the sim node, per loop mode, with a floor.
 
-    scripts/in-env python bench/loop_timing.py [--duration 60] [--loops sync,deadline,timer]
+    scripts/in-env python bench/loop_timing.py [--duration 60] [--loops deadline,sync]
                                                [--recorder both|with|without] [--lockstep 20]
 
 1. The floor: a bare rclpy 2 kHz steady timer on an EventsExecutor (spin_once loop),
    publishing one Float64 per tick, alone, for ``--floor`` seconds.
-2. Per loop mode (``sync``, ``deadline``, ``timer``) and recorder setting: the sim node and the
+2. Per loop mode (``deadline``, ``sync``) and recorder setting: the sim node and the
    follow node as processes (the bring-up's node set, the product's defaults: 10 ms stale
    limit, 5 ms drive watchdog, SCHED_FIFO where granted), the controller following at 1 mm on
    a 0.3 mm 1 Hz sine sheet for ``--duration`` seconds after a 3 s approach (the sim plays
@@ -134,6 +134,11 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
                                          'header.stamp.nanosec', 'state', 'overrun'])
         gap = b.columns('axis/capacitive_height', ['seq', 'header.stamp.sec',
                                                    'header.stamp.nanosec'])
+        faults: dict[str, int] = {}  # fault reason (its cause, numbers dropped) -> ticks
+        for _, msg in b.messages('/follow/status'):
+            if msg.state == 5:
+                cause = msg.fault_reason.split(':')[0].split(' (')[0][:60]
+                faults[cause] = faults.get(cause, 0) + 1
         missed = []  # the follow node's count of samples it never received, at 1 Hz
         for _, msg in b.messages('/diagnostics'):
             for s in msg.status:
@@ -189,6 +194,7 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
         'status_lost_by_recorder': int(ticks[-1] - ticks[0] + 1 - ticks.size),
         'latency_p50_ms': lat['p50'], 'latency_p99_ms': lat['p99'],
         'fault_ticks': int((states == 5).sum()),
+        'fault_causes': faults,
         'watchdog_trips': sum(line.count('watchdog:') for line in
                               logs.get('ladrc_sim', '').splitlines()),
     }
@@ -215,7 +221,7 @@ def main() -> int:
     ap.add_argument('--duration', type=float, default=60.0,
                     help='seconds of following measured per run [60]')
     ap.add_argument('--floor', type=float, default=10.0, help='seconds of bare timer [10]')
-    ap.add_argument('--loops', default='deadline,sync,timer',
+    ap.add_argument('--loops', default='deadline,sync',
                     help='loop modes, comma separated; the first is reported at top level')
     ap.add_argument('--recorder', default='both', choices=['both', 'with', 'without'])
     ap.add_argument('--lockstep', type=float, default=20.0,

@@ -6,7 +6,7 @@ The loop is the follow node's (``ladrc_follow.node.follow_node.run_loop``, ``loo
 an rclpy ``EventsExecutor`` served by ``spin_once`` until the next 0.5 ms deadline, then one
 message published, skipping ahead (no burst) after a stall longer than a period. Its process
 applies the follow node's real-time settings with the follow node's own function
-(``ladrc_follow.node.realtime.apply_realtime``: SCHED_FIFO 50 for the loop thread, 51 for the
+(``ladrc_contract.realtime.apply_realtime``: SCHED_FIFO 50 for the loop thread, 51 for the
 middleware threads, ``mlockall``; or priority 0 = the normal scheduler, memory still locked),
 then ``gc.collect(); gc.freeze()`` as the node does. Four conditions, each a fresh process,
 run one after the other:
@@ -202,8 +202,8 @@ def percentiles_ms(x_ns: list[int] | array) -> dict[str, float]:
 
 def worker(fifo: bool, seconds: float) -> dict:
     """Run the loop for ``seconds`` (after a warm-up); return its figures."""
+    from ladrc_contract.realtime import apply_realtime
     from ladrc_follow.node import qos
-    from ladrc_follow.node.realtime import apply_realtime
     import rclpy
     from rclpy.experimental import EventsExecutor
     from std_msgs.msg import Float64

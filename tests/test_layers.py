@@ -22,7 +22,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
-PACKAGES = ('ladrc_follow', 'ladrc_sim', 'ladrc_tools')
+PACKAGES = ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
 PURE_FOLDERS = ('control', 'models', 'headless', 'bags', 'offline', 'commissioning')
 
 # top-level module -> rosdep key / ROS package name in package.xml
@@ -35,6 +35,7 @@ DEPEND_KEY = {
     'rosbags': 'python3-rosbags-pip',
     'mcap': 'mcap-ros2-support',  # rosdistro's pip key whose package depends on mcap
     'ladrc_msgs': 'ladrc_msgs',
+    'ladrc_contract': 'ladrc_contract',
     'std_msgs': 'std_msgs',
     'diagnostic_msgs': 'diagnostic_msgs',
     'rcl_interfaces': 'rcl_interfaces',
@@ -104,7 +105,7 @@ def _rel(path: Path) -> str:
     return str(path.relative_to(SRC))
 
 
-def test_the_three_packages_exist():
+def test_the_packages_exist():
     for pkg in PACKAGES:
         assert (SRC / pkg / 'package.xml').is_file(), pkg
         assert _py_files(pkg), pkg
@@ -195,8 +196,8 @@ def test_unknown_third_party_module_is_reported():
         'pandas: no package.xml key known for this module (add it to DEPEND_KEY)']
 
 
-def test_the_realtime_helper_copies_stay_equal():
-    """The sim node carries the follow node's real-time helper (it may not import it)."""
-    follow = SRC / 'ladrc_follow' / 'ladrc_follow' / 'node' / 'realtime.py'
-    sim = SRC / 'ladrc_sim' / 'ladrc_sim' / 'node' / 'realtime.py'
-    assert follow.read_text(encoding='utf-8') == sim.read_text(encoding='utf-8')
+def test_the_contract_package_imports_no_node_package():
+    """ladrc_contract is what the drive, the controller and the tools share: it knows none."""
+    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_follow', 'ladrc_sim', 'ladrc_tools'})
+                 for p in _py_files('ladrc_contract')}
+    assert not {k: v for k, v in offenders.items() if v}

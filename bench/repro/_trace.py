@@ -273,7 +273,7 @@ if _os.environ.get('LADRC_TRACE_DIR'):
         patches = {'ladrc_follow.node.follow_node': patch_follow,
                    'ladrc_sim.node.sim_node': patch_sim,
                    'ladrc_tools.node.conform_node': patch_conform,
-                   'ladrc_follow.node.realtime': patch_realtime,
+                   'ladrc_contract.realtime': patch_realtime,
                    'rosnodes': patch_rosnodes}
 
         class Finder(importlib.abc.MetaPathFinder):

@@ -51,8 +51,8 @@ def publisher(seconds: float) -> dict:
     """Run the FIFO loop; return lateness and publish durations."""
     import gc
 
+    from ladrc_contract.realtime import apply_realtime
     from ladrc_follow.node import qos
-    from ladrc_follow.node.realtime import apply_realtime
     import rclpy
     from rclpy.experimental import EventsExecutor
     from std_msgs.msg import UInt8MultiArray
@@ -116,7 +116,7 @@ def publisher(seconds: float) -> dict:
 
 def subscriber(fifo: bool) -> None:
     """Read with a Python callback per message (as the recorder), until SIGTERM."""
-    from ladrc_follow.node.realtime import apply_realtime
+    from ladrc_contract.realtime import apply_realtime
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

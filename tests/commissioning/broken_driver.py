@@ -57,18 +57,15 @@ SEQ_SKIP_EVERY = 200
 
 
 class _Tampered:
-    """A publisher whose messages are altered just before they are published."""
+    """An outgoing message type of the sim whose fields are altered just before packing."""
 
-    def __init__(self, publisher, alter) -> None:
-        self._publisher = publisher
+    def __init__(self, outgoing, alter) -> None:
+        self._outgoing = outgoing
         self._alter = alter
 
-    def publish(self, msg) -> None:
-        self._alter(msg)
-        self._publisher.publish(msg)
-
-    def __getattr__(self, name):
-        return getattr(self._publisher, name)
+    def pack(self, sec: int, nsec: int, **fields) -> bytes:
+        stamp_ns = self._alter(sec * 1_000_000_000 + nsec, fields)
+        return self._outgoing.pack(*divmod(stamp_ns, 1_000_000_000), **fields)
 
 
 def make_classes(defects: set[str]):
@@ -76,8 +73,8 @@ def make_classes(defects: set[str]):
     base_node, base_bridge = sn.SimNode, sn.DriveBridge
 
     class BrokenBridge(base_bridge):
-        def __init__(self, node, executor, realtime: bool = True) -> None:
-            super().__init__(node, executor, realtime)
+        def __init__(self, node, realtime: bool = True) -> None:
+            super().__init__(node, realtime)
             if 'no_watchdog' in defects:
                 self.watchdog_ticks = 2**62  # never trips: the last command stays in force
             self._ticks_commanded = 0
@@ -95,37 +92,27 @@ def make_classes(defects: set[str]):
                 u = 3.0 * u
             return -u if 'wrong_sign' in defects else u
 
-        def on_command(self, msg) -> None:
-            super().on_command(msg)
+        def on_command(self, data: bytes, received_ns: int) -> None:
+            super().on_command(data, received_ns)
             if 'ignore_enable' in defects:
                 self.cmd_enable = True
 
     class BrokenNode(base_node):
         def __init__(self) -> None:
             super().__init__()
-            alters = []
-            if 'future_stamps' in defects:
-                def future(msg) -> None:
-                    ns = (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                          + FUTURE_NS)
-                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
-                alters.append(future)
-            if 'seq_gaps' in defects:
-                def skip(msg) -> None:
-                    msg.seq = msg.seq + msg.seq // SEQ_SKIP_EVERY
-                alters.append(skip)
+            def each(stamp_ns: int, fields: dict) -> int:
+                if 'seq_gaps' in defects:
+                    fields['seq'] += fields['seq'] // SEQ_SKIP_EVERY
+                return stamp_ns + (FUTURE_NS if 'future_stamps' in defects else 0)
 
-            def each(msg) -> None:
-                for alter in alters:
-                    alter(msg)
-
-            def gap_alter(msg) -> None:
-                each(msg)
+            def gap_alter(stamp_ns: int, fields: dict) -> int:
                 if 'gap_um' in defects:
-                    msg.gap_mm = msg.gap_mm * 1000.0
+                    fields['gap_mm'] *= 1000.0
+                return each(stamp_ns, fields)
 
-            self.pub_gap = _Tampered(self.pub_gap, gap_alter)
-            self.pub_fb = _Tampered(self.pub_fb, each)
+            out = self._out
+            out['CapacitiveHeight'] = _Tampered(out['CapacitiveHeight'], gap_alter)
+            out['AxisFeedback'] = _Tampered(out['AxisFeedback'], each)
 
     return BrokenNode, BrokenBridge
 

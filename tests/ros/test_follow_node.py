@@ -41,8 +41,10 @@ STATUS = ['tick', 'state', 'followed', 'target_gap_mm', 'gap_seq', 'velocity_mm_
 
 
 KILL_TIMEOUT_S = 0.01  # the product's default stale limit (docs/parameters.md)
-# The real-time parameter test's stale limit and drive watchdog: beyond one stall (STALL_MAX_S),
-# so that what it asserts is the loop's period, not whether a stall happened to trip a limit.
+STAMP_TOLERANCE_S = 0.01  # the product's default (the node's stamp_tolerance_s)
+# The real-time parameter test's stale limit, stamp tolerance and drive watchdog: beyond one stall
+# (STALL_MAX_S), so that what it asserts is the loop's period, not whether a stall happened to
+# trip a limit.
 RT_TIMEOUT_S = 0.025
 BUILD_MIN_S = 0.010  # the shortest hold of one set built on the loop (bench/repro/RESULTS.md)
 # A bound on a hang, not on speed: lock step is slower on a loaded machine, never different.
@@ -59,7 +61,8 @@ def _axis(timeout_s: float | None):
                     '-p', 'realtime:=false')
     else:
         nodes.start('follow', 'ladrc_follow', 'follow_node', '-p',
-                    f'follow.stale_timeout_s:={timeout_s}')
+                    f'follow.stale_timeout_s:={timeout_s}', '-p',
+                    f'stamp_tolerance_s:={max(timeout_s, STAMP_TOLERANCE_S)}')
         nodes.start('sim', 'ladrc_sim', 'sim_node', '-p', scenario, '-p',
                     'wait_for_controller_s:=0.0', '-p', f'watchdog_timeout_s:={timeout_s}')
     try:

@@ -1,16 +1,18 @@
 """The follow node: the 2 kHz loop around the pure :class:`FollowController`.
 
-Thin by design (DESIGN.md): sensor callbacks store the latest samples as plain values; each
-0.5 ms tick builds a :class:`TickInput`, steps the control core, and publishes one
-``VelocityCommand`` and one ``FollowStatus`` (with the exact inputs used, for replay). Nothing
-else happens on the tick path: no logging, no I/O, no allocation beyond the message fill.
+Thin by design (DESIGN.md): the loop thread takes the sensor samples straight from their
+readers as raw CDR and keeps them as plain values (:mod:`ladrc_contract.loop_io`); each 0.5 ms
+tick builds a :class:`TickInput`, steps the control core, and publishes one ``VelocityCommand``
+and one ``FollowStatus`` (with the exact inputs used, for replay), both pre-serialized. Nothing
+else happens on the loop thread: no executor, no logging, no I/O. The follow services, the
+parameters, /diagnostics and the topology check are served by the housekeeping thread
+(:mod:`.housekeeping`); a follow command takes the node's lock, so it lands between two ticks.
 
-Loop (``loop``, docs/follow-node.md "The loop"): ``deadline`` (default), an own 0.5 ms
+Loop (``loop``, :mod:`.loops`, docs/follow-node.md "The loop"): ``deadline``, an own 0.5 ms
 deadline loop; ``sync``, one tick per new pair of sensor samples, as soon as they arrive, with
-its own deadline when one is late; ``timer``, a ROS timer; all on an ``EventsExecutor``.
-``lockstep``: one tick per step of the sim node (``sim/lockstep``), on the sim's clock; offered
-against the sim node only. ``bench/loop_timing.py`` measures them, docs/follow-node.md says why
-the default won.
+its own deadline when one is late; ``lockstep``: one tick per step of the sim node
+(``sim/lockstep``), on the sim's clock; offered against the sim node only.
+``bench/loop_timing.py`` measures them, docs/follow-node.md says why the default won.
 QoS: see :mod:`ladrc_follow.node.qos`.
 
 Safety: zero velocity with ``enable = false`` on stop, fault, shutdown, SIGINT and SIGTERM
@@ -34,6 +36,9 @@ import time
 from typing import Any, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_contract.cdr import CdrPacker
+from ladrc_contract.loop_io import LoopNode
+from ladrc_contract.realtime import apply_realtime
 from ladrc_msgs.msg import (
     AxisFeedback,
     CapacitiveHeight,
@@ -64,7 +69,6 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
@@ -81,12 +85,12 @@ from ..control.params import (
 )
 from ..control.schema import Entry, entries, field_problems, param
 from . import qos
-from .cdr import CdrPacker
-from .parameter_thread import ParameterThread
-from .realtime import apply_realtime
+from .gate_process import GateProcess
+from .housekeeping import Housekeeping
+from .loops import run_loop
 from .topology import TOPOLOGY_PERIOD_S, topology_problems
 
-LOOP_MODES = ('sync', 'deadline', 'timer', 'lockstep')
+LOOP_MODES = ('sync', 'deadline', 'lockstep')
 GAP_TOPIC, FEEDBACK_TOPIC = 'axis/capacitive_height', 'axis/feedback'
 COMMAND_TOPIC = 'axis/velocity_command'
 
@@ -97,8 +101,8 @@ class NodeParams:
 
     loop: str = param('deadline', '', "tick source: 'sync' (one tick per new sensor sample "
                       "pair, own deadline when one is late), 'deadline' (own 0.5 ms deadline "
-                      "loop), 'timer' (a ROS steady-clock timer) or 'lockstep' (one tick per "
-                      "step of the sim node, on its clock; the sim node only)",
+                      "loop) or 'lockstep' (one tick per step of the sim node, on its clock; "
+                      "the sim node only)",
                       choices=LOOP_MODES, runtime=False)
     sync_wait_s: float = param(0.00025, 's', "loop 'sync': a tick waits for a new sample of "
                                'both inputs at most one period plus this long after the '
@@ -191,11 +195,11 @@ def _defaults(packer: CdrPacker) -> list[Any]:
     return [zero.get(kind, 0) for _, kind in packer.fields]
 
 
-class FollowNode(Node):
+class FollowNode(LoopNode):
     """ROS 2 wrapper of :class:`FollowController` (see module docstring)."""
 
     def __init__(self) -> None:
-        # ros2 param: served by the parameter thread (main), not the loop (parameter_thread)
+        # ros2 param: served by the housekeeping thread, not the loop (node/housekeeping.py)
         super().__init__(DEFAULT_NODE_NAME, start_parameter_services=False)
         self._declaring = True
         self._entries = {e.name: e for e in entries(ControllerParams())}
@@ -230,11 +234,12 @@ class FollowNode(Node):
         # every set reaching the controller passed the stability gate in params_from_dict (start
         # up and the parameter callback); gate=False keeps the analysis off the tick path
         self.controller = FollowController(self.params, gate=False)
-        # Sets accepted on the parameter thread, checked and built there; the loop applies
-        # them at its next tick. The lock makes "not following, so a table may change" and the
-        # queueing of the set one step against a queued start (taken by commands too).
+        # Sets accepted on the housekeeping thread, checked and built there; the loop applies
+        # them at its next tick. The node's lock: the loop holds it for a tick, a follow
+        # command takes it between two ticks, and a set takes it to queue itself ("not
+        # following, so a table may change" in one step against a queued start).
         self._accepted: queue.SimpleQueue[_AcceptedSet] = queue.SimpleQueue()
-        self._set_lock = threading.Lock()
+        self._lock = threading.Lock()
         self.h_s = self.params.h_s
         self.period_ns = int(round(self.h_s * 1e9))
         self.loop_mode = self.node_params.loop
@@ -247,7 +252,12 @@ class FollowNode(Node):
         # diagnostic_updater's naming: the node's fully qualified name, then the task
         self._diag_name = f'{self.get_fully_qualified_name().lstrip("/")}: follow loop'
         self._stamp_tol_ns = int(self.node_params.stamp_tolerance_s * 1e9)
+        # a sender stamp is judged against the reception time on the node clock: the
+        # middleware's reception stamp (system clock) unless the node runs on /clock
+        self._system_clock = not self.get_parameter('use_sim_time').value
         self.stamp_rejects = 0
+        self.last_stamp_reject = ''  # the newest rejected stamp, for /diagnostics
+        self.malformed_samples = 0  # samples whose bytes are not the contract's message
         self.tick_exceptions = 0
         self.realtime = 'none'  # what apply_realtime could set (main), for /diagnostics
         self.gap_seq = 0
@@ -289,13 +299,19 @@ class FollowNode(Node):
 
         control_in = qos.LOCKSTEP_INPUT if self.lockstep else qos.CONTROL_INPUT
         high_rate = qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE
-        self.sub_gap = self.create_subscription(
-            CapacitiveHeight, GAP_TOPIC, self._on_gap, control_in)
-        self.sub_fb = self.create_subscription(
-            AxisFeedback, FEEDBACK_TOPIC, self._on_feedback, control_in)
-        if self.lockstep:
-            self.sub_step = self.create_subscription(LockStep, 'sim/lockstep', self._on_step,
-                                                     qos.LOCKSTEP_INPUT)
+        # the loop thread's readers (node/loops.py): taken from straight, parsed to plain values
+        self.gap_reader = self.create_loop_reader(CapacitiveHeight, GAP_TOPIC, control_in)
+        self.fb_reader = self.create_loop_reader(AxisFeedback, FEEDBACK_TOPIC, control_in)
+        self.step_reader = (self.create_loop_reader(LockStep, 'sim/lockstep', qos.LOCKSTEP_INPUT)
+                            if self.lockstep else None)
+        self._gap_cdr = CdrPacker('ladrc_msgs/msg/CapacitiveHeight')
+        self._fb_cdr = CdrPacker('ladrc_msgs/msg/AxisFeedback')
+        self._step_cdr = CdrPacker('ladrc_msgs/msg/LockStep')
+        gi, fi = self._gap_cdr.index, self._fb_cdr.index
+        self._gap_fields = [gi[n] for n in ('header.stamp.sec', 'header.stamp.nanosec', 'seq',
+                                            'gap_mm', 'raw_hz', 'valid', 'status')]
+        self._fb_fields = [fi[n] for n in ('header.stamp.sec', 'header.stamp.nanosec', 'seq',
+                                           'position_mm', 'drive_enabled', 'drive_fault')]
         self.pub_cmd = self.create_publisher(VelocityCommand, COMMAND_TOPIC, high_rate)
         self.pub_status = self.create_publisher(FollowStatus, 'follow/status', high_rate)
         self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
@@ -312,7 +328,7 @@ class FollowNode(Node):
         self.create_service(ResetFault, 'follow/reset_fault', self._srv_reset)
         self.create_service(TargetWave, 'follow/target_wave', self._srv_target_wave)
 
-        # The tick publishes pre-serialized CDR (ladrc_follow.node.cdr): filling rclpy messages
+        # The tick publishes pre-serialized CDR (ladrc_contract.cdr): filling rclpy messages
         # field by field cost more than the whole control step. One value list per message,
         # refilled in place each tick.
         self._cmd_packer = CdrPacker('ladrc_msgs/msg/VelocityCommand')
@@ -347,11 +363,12 @@ class FollowNode(Node):
                           self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._publish_parameters(dump_params(self.params))
-        self.parameter_thread = ParameterThread(self)  # started by main, after apply_realtime
-        # who else publishes on the contract topics: checked on the parameter thread, a FAULT
-        # at the next tick while it lasts (node/topology.py)
+        self.housekeeping = Housekeeping(self)  # started by main, after apply_realtime
+        self.gate = GateProcess()  # started by main, before apply_realtime
+        # who else publishes on the contract topics: checked on the housekeeping thread, a
+        # FAULT at the next tick while it lasts (node/topology.py)
         self.topology_problem = ''
-        self.parameter_thread.add_timer(TOPOLOGY_PERIOD_S, self._check_topology)
+        self.housekeeping.add_timer(TOPOLOGY_PERIOD_S, self._check_topology)
         # Pay the first-call costs of the diagnostics path (message types, publisher, numpy)
         # now: measured 11-12 ms on the first call, 0.6-0.9 ms afterwards, and a first call
         # in the loop stalled it long enough to trip a 5 ms drive watchdog.
@@ -371,14 +388,14 @@ class FollowNode(Node):
                 self._parameter_overrides[e.name] = Parameter(e.name, value=value)
         self.declare_parameter(e.name, ros_value(e, e.value), descriptor(e))
 
-    def _params_from_ros(self, changes: dict[str, Any]) -> ControllerParams:
+    def _params_from_ros(self, changes: dict[str, Any], gate: bool = True) -> ControllerParams:
         values = {name: self.get_parameter(name).value for name in self._entries}
         values.update(changes)
         return params_from_dict({k: (tuple(v) if isinstance(v, (list, tuple, array)) else v)
-                                 for k, v in values.items()})
+                                 for k, v in values.items()}, gate=gate)
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """Check a set and build it for the loop (the parameter thread, never the loop's)."""
+        """Check a set and build it for the loop (the housekeeping thread, never the loop)."""
         if self._declaring:
             return SetParametersResult(successful=True)
         changes = {}
@@ -387,7 +404,12 @@ class FollowNode(Node):
                 return SetParametersResult(successful=False, reason=f'unknown parameter {p.name}')
             changes[p.name] = p.value
         try:
-            candidate = self._params_from_ros(changes)
+            candidate = self._params_from_ros(changes, gate=False)
+            # the stability gate in its own process: in this one it held the loop
+            # (node/gate_process.py)
+            reasons = self.gate.reasons(candidate) if candidate.stability.gate else []
+            if reasons:
+                raise ParameterError(reasons)
         except ParameterError as exc:
             # Rejected: the running values stay.
             return SetParametersResult(successful=False, reason=str(exc))
@@ -409,7 +431,7 @@ class FollowNode(Node):
         except Exception as exc:  # noqa: BLE001
             return SetParametersResult(successful=False,
                                        reason=f'rejected: {type(exc).__name__}: {exc}')
-        with self._set_lock:
+        with self._lock:
             state = self.controller.projected_state  # a start queued this tick counts too
             if table_changed and state not in (FollowState.IDLE, FollowState.FAULT):
                 return SetParametersResult(successful=False, reason=(
@@ -419,7 +441,7 @@ class FollowNode(Node):
         return SetParametersResult(successful=True)
 
     def _check_topology(self) -> None:
-        """Check the publishers around this controller (the parameter thread)."""
+        """Check the publishers around this controller (the housekeeping thread)."""
         try:
             problems = topology_problems(self, COMMAND_TOPIC, [GAP_TOPIC, FEEDBACK_TOPIC])
         except Exception as exc:  # noqa: BLE001 - an unknown topology is a problem too
@@ -458,36 +480,68 @@ class FollowNode(Node):
         except TableError as exc:
             raise ParameterError([f'sensor.table_file: {r}' for r in exc.reasons]) from None
 
-    # ---- inputs -----------------------------------------------------------------------
-    def _receive(self, stamp) -> tuple[float, bool]:
+    # ---- inputs (the loop thread) --------------------------------------------------------
+    def take_samples(self) -> None:
+        """Take what waits in the readers (oldest first) into the latest-sample values."""
+        for reader, on in ((self.gap_reader, self._on_gap), (self.fb_reader, self._on_feedback),
+                           (self.step_reader, self._on_step)):
+            if reader is None:
+                continue
+            while (taken := reader.take()) is not None:
+                on(*taken)
+
+    def _parse(self, packer: CdrPacker, data: bytes) -> list[Any] | None:
+        """Leaf values of a sample's CDR; None (counted) when the bytes are not the message."""
+        try:
+            return packer.unpack(data)
+        except ValueError:
+            self.malformed_samples += 1
+            return None
+
+    def _receive(self, topic: str, stamp_ns: int, received_ns: int) -> tuple[float, bool]:
         """Return the receive time (s since start, steady clock) and the stamp's plausibility.
 
-        Plausible: the sender's stamp is within ``stamp_tolerance_s`` of the node clock now
-        (ROS time: the system clock, or /clock with ``use_sim_time``; not in the future, not
-        delayed or skewed by more than that).
+        Plausible: the sender's stamp is within ``stamp_tolerance_s`` of the node clock at
+        reception (ROS time: the middleware's reception stamp on the system clock, or /clock
+        with ``use_sim_time``; not in the future, not delayed or skewed by more than that).
+        The receive time is that reception, on the steady clock: a loop that takes the sample
+        late does not make it look older than it is, nor fresher.
 
         Lock step: the sample time is the sender's stamp on the sim's clock
         (:func:`sim_time_s`); its age is judged by the core at the step's tick.
         """
         if self.lockstep:
-            return sim_time_s(stamp.sec * 1_000_000_000 + stamp.nanosec, self.period_ns,
-                              self.h_s), True
-        skew_ns = stamp.sec * 1_000_000_000 + stamp.nanosec - self._clock.now().nanoseconds
+            return sim_time_s(stamp_ns, self.period_ns, self.h_s), True
+        mono = time.monotonic_ns()
+        if self._system_clock:
+            # how long ago it arrived (a clock step in between counts as now)
+            ago_ns = min(max(time.time_ns() - received_ns, 0), 1_000_000_000)
+            reference_ns = received_ns
+        else:
+            ago_ns, reference_ns = 0, self._clock.now().nanoseconds
+        skew_ns = stamp_ns - reference_ns
         ok = -self._stamp_tol_ns <= skew_ns <= self._stamp_tol_ns
         if not ok:
             self.stamp_rejects += 1
-        return (time.monotonic_ns() - self._t0_ns) * 1e-9, ok
+            self.last_stamp_reject = (
+                f'{topic} stamp {skew_ns * 1e-6:+.3f} ms from its reception on the node clock '
+                f'(tolerance {self._stamp_tol_ns * 1e-6:g} ms)')
+        return (mono - ago_ns - self._t0_ns) * 1e-9, ok
 
-    def _on_gap(self, msg: CapacitiveHeight) -> None:
-        seq = msg.seq
+    def _on_gap(self, data: bytes, received_ns: int) -> None:
+        values = self._parse(self._gap_cdr, data)
+        if values is None:
+            return
+        sec, nsec, seq, gap_mm, raw_hz, valid, status = (values[i] for i in self._gap_fields)
         if self._gap_last_seq >= 0 and seq > self._gap_last_seq + 1:
             self.missed_gap_samples += seq - self._gap_last_seq - 1
         self._gap_last_seq = seq
         self.gap_seq = seq
         if seq >= self._gap_expect or seq + 64 < self._gap_expect:  # (a restarted sender)
             self.new_gap = True
-        self.gap_stamp_s, stamp_ok = self._receive(msg.header.stamp)
-        self._last_sample = (msg.gap_mm, msg.raw_hz, msg.valid, msg.status, stamp_ok)
+        self.gap_stamp_s, stamp_ok = self._receive(GAP_TOPIC, sec * 1_000_000_000 + nsec,
+                                                   received_ns)
+        self._last_sample = (gap_mm, raw_hz, valid, status, stamp_ok)
         self._set_gap(*self._last_sample)
 
     def _set_gap(self, gap_mm: float, raw_hz: float, valid: bool, status: int,
@@ -505,8 +559,11 @@ class FollowNode(Node):
             self.gap_valid = ok and stamp_ok
             self.gap_status = st if stamp_ok else CapacitiveHeight.STATUS_FAULT
 
-    def _on_feedback(self, msg: AxisFeedback) -> None:
-        seq = msg.seq
+    def _on_feedback(self, data: bytes, received_ns: int) -> None:
+        values = self._parse(self._fb_cdr, data)
+        if values is None:
+            return
+        sec, nsec, seq, position_mm, enabled, fault = (values[i] for i in self._fb_fields)
         if self._enc_last_seq >= 0 and seq > self._enc_last_seq + 1:
             self.missed_feedback_samples += seq - self._enc_last_seq - 1
         self._enc_last_seq = seq
@@ -515,10 +572,11 @@ class FollowNode(Node):
             self.new_feedback = True
         if self.loop_mode == 'sync':
             self._check_sample_period(seq)
-        self.enc_stamp_s, stamp_ok = self._receive(msg.header.stamp)
-        self.enc_mm = msg.position_mm if stamp_ok else math.nan  # not finite: a fault
-        self.drive_enabled = msg.drive_enabled
-        self.drive_fault = msg.drive_fault
+        self.enc_stamp_s, stamp_ok = self._receive(FEEDBACK_TOPIC, sec * 1_000_000_000 + nsec,
+                                                   received_ns)
+        self.enc_mm = position_mm if stamp_ok else math.nan  # not finite: a fault
+        self.drive_enabled = enabled
+        self.drive_fault = fault
 
     def _check_sample_period(self, seq: int) -> None:
         """Loop 'sync': the feedback's sample period (seq over receive time, 2 s) against h_s.
@@ -546,10 +604,13 @@ class FollowNode(Node):
                 f'(tolerance {self.node_params.sample_period_tolerance:.0%}): the core is '
                 'discretised at h_s')
 
-    def _on_step(self, msg: LockStep) -> None:
-        """Lock step: the sim published step ``msg.step``; tick once its samples are here."""
-        self._step = (msg.step, msg.gap_seq, msg.gap_fresh, msg.encoder_seq, msg.encoder_fresh,
-                      msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+    def _on_step(self, data: bytes, received_ns: int) -> None:
+        """Lock step: the sim published step ``step``; tick once its samples are here."""
+        values = self._parse(self._step_cdr, data)
+        if values is None:
+            return
+        sec, nsec, _frame, step, gap_seq, gap_fresh, enc_seq, enc_fresh = values
+        self._step = (step, gap_seq, gap_fresh, enc_seq, enc_fresh, sec * 1_000_000_000 + nsec)
         self._step_wall_ns = time.monotonic_ns()
 
     def step_ready(self) -> bool:
@@ -577,17 +638,25 @@ class FollowNode(Node):
         self._gap_expect = self.gap_seq + 1 if self.new_gap else self._gap_expect + 1
         self._fb_expect = self.enc_seq + 1 if self.new_feedback else self._fb_expect + 1
         self.new_gap = self.new_feedback = False
-        if self._period_fault and self.controller.state != FollowState.FAULT:
-            self.controller.fail(self._period_fault)
-        self.tick()
+        self.tick(fail=self._period_fault)
 
     # ---- the tick ---------------------------------------------------------------------
-    def tick(self, t_s: float | None = None, stamp_ns: int | None = None) -> None:
+    def tick(self, t_s: float | None = None, stamp_ns: int | None = None,
+             fail: str = '') -> None:
         """One controller tick: inputs -> core -> command and status out.
 
         ``t_s``: the tick's time (lock step: the sim's; default: the steady clock since
-        start); ``stamp_ns``: its header stamp (default: the node clock now).
+        start); ``stamp_ns``: its header stamp (default: the node clock now); ``fail``: a
+        fault of the loop's own to latch first (the sync loop's sample period). Under the
+        node's lock: a follow command (housekeeping thread) lands before or after, never
+        inside.
         """
+        with self._lock:
+            if fail and self.controller.state != FollowState.FAULT:
+                self.controller.fail(fail)
+            self._tick(t_s, stamp_ns)
+
+    def _tick(self, t_s: float | None, stamp_ns: int | None) -> None:
         start_mono = time.monotonic_ns()
         # header stamps: the node clock (ROS time)
         now_ns = self._clock.now().nanoseconds if stamp_ns is None else stamp_ns
@@ -644,7 +713,8 @@ class FollowNode(Node):
         try:
             self.publish_zero(reason, log=self.tick_exceptions == 1)
         finally:
-            self.controller.fail(reason)
+            with self._lock:
+                self.controller.fail(reason)
 
     def publish_zero(self, reason: str, log: bool = True, release: bool = False) -> None:
         """Command zero velocity with the drive enable off (stop, shutdown, Ctrl-C).
@@ -683,7 +753,7 @@ class FollowNode(Node):
         self.pub_events.publish(ev)
 
     def _command(self, response, kind: int, name: str, event: dict, **kwargs):
-        with self._set_lock:  # against a table change being accepted meanwhile
+        with self._lock:  # against a table change being accepted meanwhile
             accepted, message = self.controller.command(name, **kwargs)
         response.accepted = bool(accepted)
         response.message = str(message)
@@ -754,6 +824,7 @@ class FollowNode(Node):
             'input_age_max_us': age,
             'missed_gap_samples': float(self.missed_gap_samples),
             'stamp_rejects': float(self.stamp_rejects),
+            'malformed_samples': float(self.malformed_samples),
             'tick_exceptions': float(self.tick_exceptions),
             **{f'samples_{k}': float(v) for k, v in self.controller.counts.items()},
             'missed_feedback_samples': float(self.missed_feedback_samples),
@@ -781,6 +852,7 @@ class FollowNode(Node):
         values.update({'state': state, 'fault_reason': ctl.fault_reason or '',
                        'ticks': str(self.tick_index), 'loop': self.loop_mode,
                        'realtime': self.realtime, 'topology': self.topology_problem or 'ok',
+                       'last_stamp_reject': self.last_stamp_reject or 'none',
                        'cap_table': (self.cap_table.describe() if self.cap_table is not None
                                      else 'none (gap_mm as published)'),
                        'cap_table_out_of_range': str(self.cap_table.out_of_range
@@ -790,105 +862,6 @@ class FollowNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = [status]
         self.pub_diag.publish(arr)
-
-
-def run_loop(node: FollowNode, executor, running: list[bool]) -> None:
-    """Drive the node's ticks until ``running[0]`` turns false."""
-    period = node.period_ns
-    def tick() -> None:
-        try:
-            node.tick()
-        except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
-            node.on_tick_exception(exc)
-
-    def spin(timeout_s: float) -> None:
-        # callbacks (samples, services, timers): an exception in one is a fault, not an exit
-        try:
-            executor.spin_once(timeout_sec=timeout_s)
-        except ExternalShutdownException:
-            raise
-        except Exception as exc:  # noqa: BLE001
-            node.on_tick_exception(exc)
-
-    if node.loop_mode == 'timer':
-        node.create_timer(node.h_s, tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        while running[0]:
-            spin(0.05)
-        return
-    mono = time.monotonic_ns
-    if node.loop_mode == 'lockstep':
-        run_lockstep(node, spin, running)
-        return
-    if node.loop_mode == 'sync':
-        # One tick per new sample pair, as soon as both are here; at the latest one period
-        # plus sync_wait_s after the previous tick (a late or lost sample: the drive still gets
-        # its command, the core sees the held sample's age). spin_once returns after each
-        # callback, so the pair is checked as each sample arrives.
-        limit = period + node.sync_wait_ns
-        last = mono()
-
-        def tick_sync() -> None:
-            try:
-                node.tick_sync()
-            except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
-                node.on_tick_exception(exc)
-
-        while running[0]:
-            if node.new_gap and node.new_feedback:
-                last = mono()
-                tick_sync()
-                continue
-            remaining = last + limit - mono()
-            if remaining > 0:
-                spin(remaining * 1e-9)
-                continue
-            spin(0.0)  # late: serve what waited first
-            if not (node.new_gap and node.new_feedback) and remaining < -period:
-                spin(0.0)
-            last = mono()
-            tick_sync()
-        return
-    # Deadline loop: serve callbacks until the next deadline, then tick. A tick later than
-    # one period behind its deadline skips ahead instead of bursting to catch up.
-    next_ns = time.monotonic_ns() + period
-    while running[0]:
-        remaining = next_ns - mono()
-        if remaining > 0:
-            spin(remaining * 1e-9)
-            continue
-        if remaining < -period:
-            # late (descheduled): serve the samples that waited first, so a late controller
-            # does not blame the sensor for its own delay
-            spin(0.0)
-            spin(0.0)
-        tick()
-        next_ns += period
-        if mono() - next_ns > period:
-            next_ns = mono() + period
-
-
-def run_lockstep(node: FollowNode, spin, running: list[bool]) -> None:
-    """Lock step: tick once per ``sim/lockstep`` step, when its samples are here.
-
-    No own deadline: the sim's clock stands still until this node answers. The wall clock only
-    guards the sim: no step for ``lockstep_timeout_s`` after the first is a FAULT (the core's
-    stale limit cannot see it, its clock being the sim's).
-    """
-    timeout_ns = int(node.node_params.lockstep_timeout_s * 1e9)
-    while running[0]:
-        if node.step_ready():
-            try:
-                node.tick_step()
-            except Exception as exc:  # noqa: BLE001 - the process keeps running, in FAULT
-                node.on_tick_exception(exc)
-            continue
-        spin(0.05)
-        if (node._step_wall_ns and node._step is None
-                and time.monotonic_ns() - node._step_wall_ns > timeout_ns
-                and node.controller.state != FollowState.FAULT):
-            node.controller.fail(f'lock step: no step from the sim for '
-                                 f'{node.node_params.lockstep_timeout_s:g} s (wall clock)')
-            node.publish_zero('lock step: the sim stopped')
 
 
 def params_file_problem(args: list[str]) -> str:
@@ -940,11 +913,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f'follow_node: invalid parameters: {" | ".join(exc.reasons)}',
                   file=sys.stderr)
             return 2
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=node.context)
-        executor.add_node(node)
         np_ = node.node_params
+        node.gate.start()  # its worker process runs at the normal scheduler
         # no SCHED_FIFO in lock step: timing cannot change its result, and two FIFO processes
         # answering each other as fast as they can starve every other process (the recorder)
         applied, warnings = apply_realtime(0 if node.lockstep else np_.thread_priority,
@@ -952,9 +922,9 @@ def main(argv: list[str] | None = None) -> int:
         for text in warnings:
             node.get_logger().warning(text)
         node.realtime = ', '.join(applied) or 'none'
-        # after apply_realtime; one below a real-time loop (node/parameter_thread.py)
+        # after apply_realtime; one below a real-time loop (ladrc_contract.service_thread)
         fifo = any(a.startswith('SCHED_FIFO') for a in applied)
-        node.parameter_thread.start(np_.thread_priority - 1 if fifo else 0)
+        node.housekeeping.start(np_.thread_priority - 1 if fifo else 0)
         node.get_logger().info(f'following loop started ({node.loop_mode}, '
                                f'{1.0 / node.h_s:.0f} Hz)')
         # Everything alive now (node, controller, generated code) leaves the collector's
@@ -962,7 +932,7 @@ def main(argv: list[str] | None = None) -> int:
         gc.collect()
         gc.freeze()
         try:
-            run_loop(node, executor, running)
+            run_loop(node, running)
         except ExternalShutdownException:
             stop_reason[0] = 'external shutdown'
         finally:
@@ -972,11 +942,11 @@ def main(argv: list[str] | None = None) -> int:
                     node.publish_zero(stop_reason[0], log=i == 0, release=i == 2)
                 except Exception:  # noqa: BLE001 - the context may already be gone
                     break
-        executor.shutdown()
         return 0
     finally:
         if node is not None:
-            node.parameter_thread.close()
+            node.housekeeping.close()
+            node.gate.close()
             node.destroy_node()
         rclpy.try_shutdown()
 

@@ -2,9 +2,12 @@
 
 It runs a scenario with the *same* headless runner (:func:`ladrc_sim.headless.runner.run`) and
 the same models: the "controller" the runner steps is a :class:`DriveBridge` that, at each 0.5 ms
-deadline, publishes the tick's capacitive height, axis feedback and truth, and returns the
-latest velocity command received over DDS (one tick of transport delay, as on a fieldbus).
-The scenario's follow commands go to the controller's services, as a CNC would send them.
+deadline, takes the velocity commands that arrived (straight from the reader, raw:
+:mod:`ladrc_contract.loop_io`), publishes the tick's capacitive height, axis feedback and truth
+(pre-serialized CDR), and returns the latest command (one tick of transport delay, as on a
+fieldbus). The loop thread spins no executor: ``axis/reset_drive``, the scenario's follow
+commands (service calls to the controller, as a CNC would send them) and /diagnostics are served
+by a thread of their own (:mod:`ladrc_contract.service_thread`).
 
 Like a drive, it stops the axis when commands stop: no command for longer than
 ``watchdog_timeout_s`` (default 5 ms, counted in the drive's own cycles) → quick stop (the axis
@@ -37,10 +40,15 @@ import math
 from pathlib import Path
 import signal
 import sys
+import threading
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_contract.cdr import CdrPacker
+from ladrc_contract.loop_io import LoopNode, SampleWait
+from ladrc_contract.realtime import apply_realtime
+from ladrc_contract.service_thread import ServiceThread
 from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import (
     GradientFollow,
@@ -54,7 +62,6 @@ from ladrc_msgs.srv import (
 )
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
@@ -68,7 +75,6 @@ from ..headless.scenario import (
 )
 from ..models.sensor import oscillator_hz_scalar
 from .commander_lock import CommanderLock, Identity, describe
-from .realtime import apply_realtime
 
 # The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
 # has a seq counter, so loss is measured); a keep-last-1 best-effort command input so the drive
@@ -109,6 +115,40 @@ SERVICES = {
 REQUEST_FIELDS = {'on': 'machining'}
 
 
+class _Command(NamedTuple):
+    """The fields of a ``VelocityCommand`` the drive uses."""
+
+    seq: int
+    velocity_mm_s: float
+    enable: bool
+    sample_seq: int
+    commander: str
+    session: int
+    release: bool
+
+
+COMMAND_FIELDS = _Command._fields
+
+
+class _Outgoing:
+    """One outgoing message type: a value list refilled per message, packed to CDR."""
+
+    def __init__(self, typename: str, frame_id: str) -> None:
+        self.packer = CdrPacker(typename)
+        zero = {'string': '', 'bool': False, 'float32': 0.0, 'float64': 0.0}
+        self.values = [zero.get(kind, 0) for _, kind in self.packer.fields]
+        self.values[self.packer.index['header.frame_id']] = frame_id
+        self.index = self.packer.index
+
+    def pack(self, sec: int, nsec: int, **fields: Any) -> bytes:
+        """CDR of the message stamped ``sec.nsec`` with ``fields`` (the rest as last time)."""
+        values, index = self.values, self.index
+        values[0], values[1] = sec, nsec  # header.stamp
+        for name, value in fields.items():
+            values[index[name]] = value
+        return self.packer.pack(values)
+
+
 class StopSimulation(Exception):
     """Raised inside the runner's loop to end the run early (Ctrl-C)."""
 
@@ -120,10 +160,13 @@ class LockstepAbort(Exception):
 class DriveBridge:
     """The runner's controller: publishes samples, returns received commands, paces real time."""
 
-    def __init__(self, node: 'SimNode', executor, realtime: bool = True) -> None:
+    def __init__(self, node: 'SimNode', realtime: bool = True) -> None:
         self.node = node
-        self.executor = executor
         self.realtime = realtime
+        # the commander lock and the held command: the loop thread takes commands, the
+        # service thread resets the drive
+        self.mutex = threading.Lock()
+        self._wait = SampleWait(node.context, (node.cmd_reader,))
         self.running = True
         h = node.h_s
         self.period_ns = int(round(h * 1e9))
@@ -153,6 +196,7 @@ class DriveBridge:
         self.lockstep_timeout_ns = int(node.lockstep_timeout_s * 1e9)
         self._answer: tuple[float, bool] | None = None  # lock step: the command answering seq
         self.lock = CommanderLock()
+        self.malformed_commands = 0
         self.cmd_source: Identity = ('', 0)  # whose command is held
         self.cycles_by_commander: Counter = Counter()  # drive cycles executed, per source
 
@@ -174,16 +218,29 @@ class DriveBridge:
             self._await(future.done, f'no answer to the {name} service call')
 
     def _await(self, condition, what: str) -> None:
-        """Lock step: serve callbacks until ``condition()``; abort after the wall-clock wait."""
+        """Lock step: wait until ``condition()``; abort after the wall-clock wait.
+
+        The service thread serves the call's answer; the commands that arrive meanwhile are
+        taken here (the answer to the step is one of them).
+        """
         limit = time.monotonic_ns() + self.lockstep_timeout_ns
-        spin_once = self.executor.spin_once
-        while not condition():
+        while True:
+            self.take_commands()
+            if condition():
+                return
             if not self.running:
                 raise StopSimulation()
-            if time.monotonic_ns() > limit:
+            now = time.monotonic_ns()
+            if now > limit:
                 raise LockstepAbort(f'lock step aborted at step {self.seq}: {what} within '
                                     f'{self.lockstep_timeout_ns * 1e-9:g} s (wall clock)')
-            spin_once(timeout_sec=0.05)
+            self._wait.wait(min(limit - now, 2_000_000))
+
+    def take_commands(self) -> None:
+        """Take the velocity commands that arrived, oldest first (the loop thread)."""
+        reader = self.node.cmd_reader
+        while (taken := reader.take()) is not None:
+            self.on_command(*taken)
 
     def _start(self) -> int:
         now = time.monotonic_ns()
@@ -202,7 +259,7 @@ class DriveBridge:
         if self.realtime:  # paced: never faster than real time
             deadline = self.t_start_ns + self.seq * self.period_ns
             while now < deadline:
-                self.executor.spin_once(timeout_sec=(deadline - now) * 1e-9)
+                time.sleep((deadline - now) * 1e-9)
                 now = time.monotonic_ns()
         if not self.running:
             raise StopSimulation()
@@ -237,11 +294,9 @@ class DriveBridge:
         deadline = self.t_start_ns + self.seq * self.period_ns
         if self.realtime and now < deadline:
             while now < deadline:
-                self.executor.spin_once(timeout_sec=(deadline - now) * 1e-9)
+                time.sleep((deadline - now) * 1e-9)
                 now = time.monotonic_ns()
         else:
-            # Late (or not real time): still take the command that has arrived meanwhile.
-            self.executor.spin_once(timeout_sec=0.0)
             if self.realtime and now - deadline > self.period_ns:
                 # Late by more than a cycle (this process was descheduled): shift the schedule
                 # instead of bursting through the missed cycles, as a drive synchronised to
@@ -251,6 +306,7 @@ class DriveBridge:
                 self.t_start_ns += now - deadline
         if not self.running:
             raise StopSimulation()
+        self.take_commands()  # what arrived until this cycle
         if self._last_tick_ns:
             self.periods_us.append((now - self._last_tick_ns) * 1e-3)
         self._last_tick_ns = now
@@ -290,12 +346,23 @@ class DriveBridge:
         """Return True while the watchdog or the commander lock faults the drive (a_max brake)."""
         return bool(self.fault_reason or self.lock.fault_reason)
 
-    def on_command(self, msg: VelocityCommand) -> None:
-        """Velocity command callback: keep the latest (zero-order hold).
+    def on_command(self, data: bytes, _received_ns: int) -> None:
+        """One velocity command taken from the reader: keep the latest (zero-order hold).
 
         Lock step: the command answering the step being waited for is its answer. A command
-        the commander lock refuses is not executed (module docstring).
+        the commander lock refuses is not executed (module docstring); bytes that are not a
+        ``VelocityCommand`` are nobody's command (counted, not executed).
         """
+        try:
+            msg = _Command(*(self.node.cmd_cdr.unpack(data)[i]
+                             for i in self.node.cmd_fields))
+        except ValueError:
+            self.malformed_commands += 1
+            return
+        with self.mutex:
+            self._command(msg)
+
+    def _command(self, msg: _Command) -> None:
         faulted = bool(self.lock.fault_reason)
         if not self.lock.admit(msg.commander, msg.session, msg.release):
             if not faulted:  # the first foreign command: hold zero from now on
@@ -317,7 +384,7 @@ class DriveBridge:
         self.ticks_since_cmd = 0
 
 
-class SimNode(Node):
+class SimNode(LoopNode):
     """Publishes the simulated axis; subscribes to velocity commands; plays a scenario."""
 
     def __init__(self) -> None:
@@ -362,7 +429,6 @@ class SimNode(Node):
         self.pub_truth = self.create_publisher(SimTruth, 'sim/truth', high_rate)
         self.pub_step = (self.create_publisher(LockStep, 'sim/lockstep', LOCKSTEP_INPUT)
                          if self.lockstep else None)
-        self._step_msg = LockStep()
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # The scenario text, latched: a recorder puts it into the bag (self-describing runs).
         self.pub_scenario = self.create_publisher(String, 'run/scenario', RUN_TEXT)
@@ -370,13 +436,19 @@ class SimNode(Node):
         self.follow_clients = {name: self.create_client(srv, topic)
                         for name, (srv, topic) in SERVICES.items()}
         self.bridge: DriveBridge | None = None
-        self._gap = CapacitiveHeight()
-        self._gap.header.frame_id = self.frame_id
-        self._fb = AxisFeedback()
-        self._fb.header.frame_id = self.frame_id
-        self._truth = SimTruth()
-        self._truth.header.frame_id = self.frame_id
-        self._pending: list = []
+        # the drive's command input, taken from by the loop thread (DriveBridge.take_commands)
+        self.cmd_reader = self.create_loop_reader(
+            VelocityCommand, 'axis/velocity_command',
+            LOCKSTEP_COMMAND_INPUT if self.lockstep else CONTROL_INPUT)
+        self.cmd_cdr = CdrPacker('ladrc_msgs/msg/VelocityCommand')
+        self.cmd_fields = [self.cmd_cdr.index[n] for n in COMMAND_FIELDS]
+        # what the loop publishes: pre-serialized CDR from one value list per message
+        self._out = {name: _Outgoing(f'ladrc_msgs/msg/{name}', frame)
+                     for name, frame in (('CapacitiveHeight', self.frame_id),
+                                         ('AxisFeedback', self.frame_id),
+                                         ('SimTruth', self.frame_id), ('LockStep', ''))}
+        self.gap_seq = 0  # seq of the newest capacitive sample (LockStep.gap_seq)
+        self.enc_seq = 0
         self.create_timer(1.0, self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -393,15 +465,13 @@ class SimNode(Node):
         """Wire the bridge's command callback and the drive's reset."""
         self.bridge = bridge
         self.create_service(ResetFault, 'axis/reset_drive', self._srv_reset_drive)
-        self.sub_cmd = self.create_subscription(
-            VelocityCommand, 'axis/velocity_command', bridge.on_command,
-            LOCKSTEP_COMMAND_INPUT if self.lockstep else CONTROL_INPUT)
 
     def _srv_reset_drive(self, request, response):
         """Clear the commander fault (the explicit reset) and the watchdog's (next commander)."""
         b = self.bridge
-        was = b.lock.reset()
-        b.fault_reason = ''
+        with b.mutex:
+            was = b.lock.reset()
+            b.fault_reason = ''
         response.accepted = True
         response.message = f'drive reset ({was or "no commander fault"})'
         self.get_logger().info(response.message)
@@ -437,68 +507,57 @@ class SimNode(Node):
         A sample is fresh when the runner took it at this step (its stamp is the step's
         time); a held one (dropout) is not sent. ``seq`` is the step; each topic's own seq
         counts its published samples. Lock step: then ``sim/lockstep``, all stamped
-        ``stamp_ns`` (the sim's time).
+        ``stamp_ns`` (the sim's time). The samples go out back to back (a reader's
+        middleware thread takes them in one wake-up).
         """
         # header stamps: the node clock (ROS time: system clock, or /clock with use_sim_time)
         if stamp_ns is None:
             stamp_ns = self.get_clock().now().nanoseconds
         sec, nsec = divmod(stamp_ns, 1_000_000_000)
         bridge = self.bridge
+        out = self._out
         gap_fresh = tick.gap_stamp_s == tick.t_s
         enc_fresh = tick.encoder_stamp_s == tick.t_s
-        gap = self._gap
-        gap.header.stamp.sec = sec
-        gap.header.stamp.nanosec = nsec
         if gap_fresh:
-            gap.seq = bridge.gap_seq
+            self.gap_seq = bridge.gap_seq
             bridge.gap_seq += 1
+        if enc_fresh:
+            self.enc_seq = bridge.enc_seq
+            bridge.enc_seq += 1
         reading = float(tick.gap_mm)
-        gap.gap_mm = math.nan if self.raw_only else reading
-        gap.valid = bool(tick.gap_valid)
-        gap.status = int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1))
         # the raw value behind the reading: the sensor model's oscillator (docs/simulator.md),
         # falls as the capacitance rises (as the nozzle approaches)
-        gap.raw_hz = oscillator_hz_scalar(reading, self.scenario.sensor)
-        if gap_fresh:
-            self.pub_gap.publish(gap)
-        fb = self._fb
-        fb.header.stamp.sec = sec
-        fb.header.stamp.nanosec = nsec
-        if enc_fresh:
-            fb.seq = bridge.enc_seq
-            bridge.enc_seq += 1
-        fb.position_mm = float(tick.encoder_mm)
+        gap = out['CapacitiveHeight'].pack(
+            sec, nsec, seq=self.gap_seq, gap_mm=math.nan if self.raw_only else reading,
+            raw_hz=oscillator_hz_scalar(reading, self.scenario.sensor),
+            valid=bool(tick.gap_valid),
+            status=int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1)))
         dt = tick.t_s - bridge._prev_t
         # differentiated over the drive's cycle, as the headless bag writer does
-        fb.velocity_mm_s = ((tick.encoder_mm - bridge._prev_enc) / self.h_s
-                            if dt > 0 and math.isfinite(bridge._prev_enc) else 0.0)
+        velocity = ((tick.encoder_mm - bridge._prev_enc) / self.h_s
+                    if dt > 0 and math.isfinite(bridge._prev_enc) else 0.0)
         bridge._prev_enc, bridge._prev_t = tick.encoder_mm, tick.t_s
-        fb.drive_enabled = bool(tick.drive_enabled)
-        fb.drive_fault = fault
-        fb.fault_reason = reason
+        fb = out['AxisFeedback'].pack(
+            sec, nsec, seq=self.enc_seq, position_mm=float(tick.encoder_mm),
+            velocity_mm_s=velocity, drive_enabled=bool(tick.drive_enabled), drive_fault=fault,
+            fault_reason=reason)
+        if gap_fresh:
+            self.pub_gap.publish(gap)
         if enc_fresh:
             self.pub_fb.publish(fb)
         if self.pub_step is not None:
             # the step goes out before the truth: the controller computes while the sim
             # publishes what only the recorder reads
-            st = self._step_msg
-            st.header.stamp.sec = sec
-            st.header.stamp.nanosec = nsec
-            st.step = seq
-            st.gap_seq, st.gap_fresh = gap.seq, gap_fresh
-            st.encoder_seq, st.encoder_fresh = fb.seq, enc_fresh
-            self.pub_step.publish(st)
-        tr = self._truth
-        tr.header.stamp.sec = sec
-        tr.header.stamp.nanosec = nsec
-        tr.seq = seq
-        (tr.true_gap_mm, tr.sheet_mm, tr.nozzle_mm, tr.edge_coverage,
-         tr.plate_velocity_mm_s) = (float(v) for v in truth[:5])
-        tr.collision = bool(truth[0] <= 0.0)
-        tr.x_mm = tr.y_mm = math.nan
-        self.pub_truth.publish(tr)
+            self.pub_step.publish(out['LockStep'].pack(
+                sec, nsec, step=seq, gap_seq=self.gap_seq, gap_fresh=gap_fresh,
+                encoder_seq=self.enc_seq, encoder_fresh=enc_fresh))
+        true_gap, sheet, nozzle, coverage, plate_velocity = (float(v) for v in truth[:5])
+        self.pub_truth.publish(out['SimTruth'].pack(
+            sec, nsec, seq=seq, true_gap_mm=true_gap, sheet_mm=sheet, nozzle_mm=nozzle,
+            edge_coverage=coverage, plate_velocity_mm_s=plate_velocity,
+            collision=bool(true_gap <= 0.0), x_mm=math.nan, y_mm=math.nan))
 
-    def wait_for_controller(self, executor, timeout_s: float) -> bool:
+    def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""
         needed = {e.name for e in self.scenario.timeline if e.name in SERVICES}
         deadline = time.monotonic() + timeout_s
@@ -506,7 +565,7 @@ class SimNode(Node):
             if all(self.follow_clients[n].service_is_ready() for n in needed) and (
                     not self.lockstep or self.lockstep_matched()):
                 return True
-            executor.spin_once(timeout_sec=0.05)
+            time.sleep(0.05)  # the service thread serves the graph meanwhile
         return not needed and not self.lockstep
 
     def lockstep_matched(self) -> bool:
@@ -514,13 +573,13 @@ class SimNode(Node):
         return (self.pub_step.get_subscription_count() > 0
                 and self.pub_gap.get_subscription_count() > 0
                 and self.pub_fb.get_subscription_count() > 0
-                and self.count_publishers(self.sub_cmd.topic_name) > 0)
+                and self.count_publishers(self.cmd_reader.topic_name) > 0)
 
-    def wait_for_recorder(self, executor, timeout_s: float) -> bool:
+    def wait_for_recorder(self, timeout_s: float) -> bool:
         """Wait until something (the recorder) subscribes to sim/truth."""
         deadline = time.monotonic() + timeout_s
         while self.pub_truth.get_subscription_count() == 0 and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
+            time.sleep(0.05)
         return self.pub_truth.get_subscription_count() > 0
 
     def _publish_diagnostics(self) -> None:
@@ -550,27 +609,27 @@ class SimNode(Node):
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``ros2 run ladrc_sim sim_node --ros-args -p scenario:=showcase``."""
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = services = None
     try:
         try:
             node = SimNode()
         except (ScenarioError, ValueError) as exc:
             print(f'sim_node: {exc}', file=sys.stderr)
             return 2
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=node.context)
-        executor.add_node(node)
         cpu = int(node.get_parameter('cpu').value)
         # lock step: no SCHED_FIFO (ladrc_follow's follow_node.main says why)
-        _, warnings = apply_realtime(0 if node.lockstep
-                                     else int(node.get_parameter('thread_priority').value),
-                                     [cpu] if cpu >= 0 else [],
-                                     bool(node.get_parameter('lock_memory').value))
+        priority = 0 if node.lockstep else int(node.get_parameter('thread_priority').value)
+        applied, warnings = apply_realtime(priority, [cpu] if cpu >= 0 else [],
+                                           bool(node.get_parameter('lock_memory').value))
         for text in warnings:
             node.get_logger().warning(text)
-        bridge = DriveBridge(node, executor, bool(node.get_parameter('realtime').value))
+        bridge = DriveBridge(node, bool(node.get_parameter('realtime').value))
         node.attach(bridge)
+        # services, the scenario's service calls and /diagnostics: a thread of their own, one
+        # below a real-time loop (ladrc_contract.service_thread)
+        services = ServiceThread(node.context, (node,))
+        fifo = any(a.startswith('SCHED_FIFO') for a in applied)
+        services.start(priority - 1 if fifo else 0)
 
         def _stop(_signum, _frame):
             bridge.running = False
@@ -578,7 +637,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGINT, _stop)
         signal.signal(signal.SIGTERM, _stop)
         wait_s = float(node.get_parameter('wait_for_controller_s').value)
-        if not node.wait_for_controller(executor, max(wait_s, node.lockstep_timeout_s)
+        if not node.wait_for_controller(max(wait_s, node.lockstep_timeout_s)
                                         if node.lockstep else wait_s):
             if node.lockstep:
                 print(f'sim_node: lock step: no controller in lock step within '
@@ -589,11 +648,11 @@ def main(argv: list[str] | None = None) -> int:
             node.get_logger().warning('controller services not found: playing the scenario '
                                       'anyway (its follow commands may be lost)')
         wait_rec = float(node.get_parameter('wait_for_recorder_s').value)
-        if wait_rec > 0 and not node.wait_for_recorder(executor, wait_rec):
+        if wait_rec > 0 and not node.wait_for_recorder(wait_rec):
             node.get_logger().warning('no recorder subscribed to sim/truth: playing anyway')
         settle = time.monotonic() + float(node.get_parameter('start_delay_s').value)
         while time.monotonic() < settle:
-            executor.spin_once(timeout_sec=0.05)
+            time.sleep(0.05)
         node.get_logger().info(f'scenario {node.scenario.name}: {node.scenario.duration_s} s')
         try:
             result = run(node.scenario, bridge)
@@ -606,10 +665,12 @@ def main(argv: list[str] | None = None) -> int:
         node.get_logger().info(f'commands by source: {json.dumps(node.commander_summary())}')
         if bridge.running and not node.get_parameter('exit_at_end').value:
             while bridge.running:
-                executor.spin_once(timeout_sec=0.1)
-        executor.shutdown()
+                bridge.take_commands()
+                time.sleep(0.1)
         return 0
     finally:
+        if services is not None:
+            services.close()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -38,9 +38,9 @@ import sys
 import time
 from typing import Any, NamedTuple
 
+from ladrc_contract.realtime import apply_realtime
 from ladrc_follow.node.follow_node import sim_time_s
 from ladrc_follow.node.qos import HIGH_RATE, LOCKSTEP_HIGH_RATE, LOCKSTEP_INPUT, RUN_TEXT
-from ladrc_follow.node.realtime import apply_realtime
 from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import Calibrate
 import numpy as np

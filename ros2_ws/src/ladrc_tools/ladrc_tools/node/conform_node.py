@@ -861,7 +861,7 @@ def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[
                        signal_handler_options=SignalHandlerOptions.NO)
             probe = ConformProbe(context, opts.plan, opts.tolerances, tmp / 'bag', log)
             if opts.thread_priority > 0:
-                from ladrc_follow.node.realtime import apply_realtime
+                from ladrc_contract.realtime import apply_realtime
 
                 _, warnings = apply_realtime(opts.thread_priority, [], False)
                 for w in warnings:

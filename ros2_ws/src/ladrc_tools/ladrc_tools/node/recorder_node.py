@@ -1,13 +1,15 @@
 """Recorder node: every contract topic, raw CDR, into a crash-safe rosbag2 bag.
 
-Subscriptions are ``raw=True`` (rclpy hands over the CDR bytes, byte-identical to what the bag
-stores, so nothing is deserialized); the callback only appends ``(topic, bytes, receive time)``
-to a bounded deque, and a writer thread writes them with
+The readers are loop readers (:mod:`ladrc_contract.loop_io`): the main thread takes the raw CDR
+bytes (byte-identical to what the bag stores, so nothing is deserialized) from every reader
+every ``poll_s`` (5 ms), all that waits, in order of reception, and appends
+``(topic, bytes, receive time)`` to a bounded deque; a writer thread writes them with
 :class:`ladrc_tools.bags.bag.BagWriter` (one streaming MCAP file flushed every ``flush_s``, see
 bag.py for the crash-safety design). A full queue drops the new message and counts it per
-topic (summary and /diagnostics). The node spins an ``EventsExecutor`` with a
-``spin_once`` loop: the notes' measurement (SingleThreadedExecutor dropped up to 20-30 % of
-2 kHz messages; EventsExecutor received all).
+topic (summary and /diagnostics). No executor handles the 2 kHz topics: a callback per message
+(12 000 a second with the whole contract) cost the recorder most of a core on this machine
+class; taking them in batches costs a few microseconds each, and the readers' history (5 s)
+outlasts any pause. The receive time is the middleware's reception stamp of each message.
 
 QoS matches the publishers (bag.TOPIC_QOS): BEST_EFFORT keep-last 100 on the 2 kHz topics,
 RELIABLE + TRANSIENT_LOCAL on ``follow/events`` (depth 100) and ``run/*`` (depth 1), default on
@@ -20,6 +22,7 @@ period, the most a kill loses besides the queue), ``compression`` (mcap chunks: 
 ``lz4`` | ``none``), ``queue_max`` (messages), ``stop_grace_s`` (keeps recording this long
 after SIGINT/SIGTERM, for the other nodes' last messages when all are interrupted at once),
 ``topics`` (the contract topics to record; empty = all; bench/loop_timing.py records two),
+``poll_s`` (how often the readers are emptied),
 ``reliable`` (subscribe the 2 kHz topics RELIABLE: lock step, whose writers are reliable, so a
 recorder that falls behind is repaired rather than losing messages; docs/follow-node.md).
 Topics are stored under their fully qualified names (the node's namespace applies).
@@ -222,10 +225,19 @@ class _Diagnostics:
         self.pub.publish(msg)
 
 
+def take_batch(readers: dict[str, Any]) -> list[tuple[int, str, bytes]]:
+    """Every message waiting in ``readers`` (topic -> LoopReader), in order of reception."""
+    batch = [(stamp, topic, data) for topic, reader in readers.items()
+             for data, stamp in reader.take_all()]
+    batch.sort(key=lambda item: item[0])
+    return batch
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the recorder node until SIGINT/SIGTERM; print the JSON summary."""
+    from ladrc_contract.loop_io import LoopNode
+    from ladrc_contract.service_thread import ServiceThread
     import rclpy
-    from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -236,8 +248,8 @@ def main(args: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    node = rclpy.create_node('recorder')
-    recorder = None
+    node = LoopNode('recorder')
+    recorder = services = None
     try:
         output = node.declare_parameter('output', '').value or time.strftime(
             'bags/run_%Y%m%d_%H%M%S')
@@ -248,40 +260,50 @@ def main(args: list[str] | None = None) -> int:
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
         grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
         reliable = bool(node.declare_parameter('reliable', False).value)
+        poll_s = float(node.declare_parameter('poll_s', 0.005).value)
         only = [t.strip('/') for t in node.declare_parameter('topics', ['']).value if t]
         unknown = sorted(set(only) - {t.strip('/') for t in TOPIC_TYPES})
         if unknown:
             print(f'recorder: not contract topics: {", ".join(unknown)}', file=sys.stderr)
             return 2
         wanted = {t: m for t, m in TOPIC_TYPES.items() if not only or t.strip('/') in only}
-        clock = node.get_clock()  # bag time = receive time on the node clock, as ros2 bag
-
-        def on_message(data: bytes, topic: str) -> None:
-            recorder.enqueue(topic, data, clock.now().nanoseconds)
-
-        subs = {topic: node.create_subscription(
-            _msg_class(msgtype), topic, lambda data, t=topic: on_message(data, t),
-            _qos_profile(topic, reliable), raw=True) for topic, msgtype in wanted.items()}
+        # bag time = receive time on the node clock, as ros2 bag: the middleware's reception
+        # stamp (system clock), or the node clock at the take with use_sim_time
+        sim_clock = node.get_clock() if node.get_parameter('use_sim_time').value else None
+        readers = {topic: node.create_loop_reader(_msg_class(msgtype), topic,
+                                                  _qos_profile(topic, reliable))
+                   for topic, msgtype in wanted.items()}
         try:
             recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
-                                topics={t: s.topic_name for t, s in subs.items()})
+                                topics={t: r.topic_name for t, r in readers.items()})
         except (BagError, ValueError, TypeError) as exc:
             print(f'recorder: {exc}', file=sys.stderr)
             return 2
         diag = _Diagnostics(node, recorder)
         node.create_timer(1.0, diag.publish)
-        executor = EventsExecutor()
-        executor.add_node(node)
+        services = ServiceThread(node.context, (node,))  # /diagnostics, parameters
+        services.start()
         node.get_logger().info(f'recording to {output} ({storage})')
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
+
+        def record_until(done) -> None:
+            while True:  # a last take once done
+                finished = done()
+                batch = take_batch(readers)
+                now = sim_clock.now().nanoseconds if sim_clock is not None else None
+                for stamp, topic, data in batch:
+                    recorder.enqueue(topic, data, stamp if now is None else now)
+                if finished:
+                    return
+                time.sleep(poll_s)
+
+        record_until(stop.is_set)
         # interrupted together with the other nodes (launch's Ctrl-C): keep recording a moment,
         # so the controller's zero command on its way down is in the bag
         end = time.monotonic() + max(0.0, grace_s)
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.02)
-        executor.shutdown()
+        record_until(lambda: time.monotonic() >= end)
     finally:
+        if services is not None:
+            services.close()
         if recorder is not None:
             summary = recorder.close()
             print(json.dumps(summary), flush=True)

@@ -1,4 +1,4 @@
-"""Fast CDR serialization of one message type, for the 2 kHz publish path.
+"""Fast CDR serialization of one message type, both ways, for the 2 kHz loop.
 
 rclpy's ``publish(msg)`` converts the Python message field by field (property setters with
 type checks, then a C conversion): about 27 µs for a ``FollowStatus`` here, plus ~1 µs per
@@ -9,6 +9,10 @@ alignment. The layout comes from the rclpy-generated message classes themselves
 (``get_fields_and_field_types()``, in declaration order = CDR order), so the follow node needs
 nothing beyond rclpy and the message packages (no rosbags). Byte-identical to rosbags'
 serializer (padding zeroed) and data-identical to rclpy's (tests/ros/test_cdr.py).
+
+The other way, :meth:`CdrPacker.unpack` reads the leaf values back from the raw bytes a reader
+takes (``take_message(..., raw=True)``): a loop that takes its samples straight from the reader
+needs no rclpy message object per sample (rclpy's deserialization builds one field by field).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ _IDL_PRIMITIVES = {
 }
 _NESTED = re.compile(r'^([A-Za-z_]\w*)/([A-Za-z_]\w*)$')  # 'builtin_interfaces/Time'
 _HEADER = b'\x00\x01\x00\x00'  # CDR, little endian
+_U32 = struct.Struct('<I')
 
 
 def message_class(typename: str) -> type:
@@ -120,3 +125,32 @@ class CdrPacker:
                 parts.append(fmt.pack(*values[lo:hi]))
                 pos += size
         return b''.join(parts)
+
+    def unpack(self, data: bytes) -> list[Any]:
+        """Return the leaf values of CDR ``data`` (little endian, as :meth:`pack` writes it).
+
+        Raises ``ValueError`` for data that is not such a message (short, another encoding, a
+        string without its terminator): a reader never trusts a sender's bytes.
+        """
+        if data[:4] != _HEADER:
+            raise ValueError(f'{self.typename}: not little-endian CDR')
+        out: list[Any] = []
+        pos = 0  # offset after the encapsulation header
+        try:
+            for kind, item in self._plan:
+                if kind == 'string':
+                    pos += (-pos) % 4
+                    (n,) = _U32.unpack_from(data, 4 + pos)
+                    end = 4 + pos + 4 + n
+                    if n < 1 or end > len(data) or data[end - 1] != 0:
+                        raise ValueError(f'{self.typename}: malformed string')
+                    out.append(data[4 + pos + 4:end - 1].decode())
+                    pos += 4 + n
+                else:
+                    _, _, formats = item
+                    fmt, size = formats[pos & 7]
+                    out.extend(fmt.unpack_from(data, 4 + pos))
+                    pos += size
+        except (struct.error, UnicodeDecodeError) as exc:
+            raise ValueError(f'{self.typename}: {exc}') from None
+        return out
