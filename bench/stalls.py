@@ -2,12 +2,13 @@
 
     scripts/in-env python bench/stalls.py [--seconds 20] [--conditions fifo_idle,fifo_busy,...]
 
-The loop is the follow node's (``ladrc_follow.node.follow_node.run_loop``, ``loop: deadline``):
-an rclpy ``EventsExecutor`` served by ``spin_once`` until the next 0.5 ms deadline, then one
-message published, skipping ahead (no burst) after a stall longer than a period. Its process
-applies the follow node's real-time settings with the follow node's own function
-(``ladrc_contract.realtime.apply_realtime``: SCHED_FIFO 50 for the loop thread, 51 for the
-middleware threads, ``mlockall``; or priority 0 = the normal scheduler, memory still locked),
+The loop is the follow node's (``ladrc_follow.node.loops.run_deadline``, ``loop: deadline``):
+sleep until the next 0.5 ms deadline, take from a loop reader (``ladrc_contract.loop_io``, no
+executor), publish one pre-serialized message, skipping ahead (no burst) after a stall longer
+than a period. Its process applies the follow node's real-time settings with the follow node's
+own function (``ladrc_contract.realtime.apply_realtime``: SCHED_FIFO 50 for the loop thread, 51
+for the middleware threads, timer slack 1 ns, ``mlockall``; or priority 0 = the normal
+scheduler, memory still locked),
 then ``gc.collect(); gc.freeze()`` as the node does. Four conditions, each a fresh process,
 run one after the other:
 
@@ -56,40 +57,42 @@ import time
 # other sessions' processes ran too (``foreign_cpu`` = CPUs' worth of time used by processes
 # this script did not start, averaged over the condition).
 MEASURED = {
-    'date': '2026-12-01',
-    'machine': '2 cores (Firecracker VM, Intel Xeon vCPUs, Linux 6.18); SCHED_FIFO granted',
-    'seconds_per_condition': 20,
-    # late_* = wake-up lateness in ms; over_N = ticks later than N ms (of ~40 000)
-    'fifo_idle': {'late_p50': 0.045, 'late_p99': 0.175, 'late_p999': 0.358, 'late_max': 5.37,
-                  'over_2': 2, 'over_5': 1, 'over_10': 0, 'over_50': 0, 'foreign_cpu': 0.94},
-    'fifo_busy': {'late_p50': 0.039, 'late_p99': 0.209, 'late_p999': 0.304, 'late_max': 1.15,
-                  'over_2': 0, 'over_5': 0, 'over_10': 0, 'over_50': 0, 'foreign_cpu': 1.25},
-    'normal_idle': {'late_p50': 0.090, 'late_p99': 0.734, 'late_p999': 2.79, 'late_max': 17.04,
-                    'over_2': 72, 'over_5': 10, 'over_10': 1, 'over_50': 0,
-                    'foreign_cpu': 1.09},
-    'normal_busy': {'late_p50': 0.074, 'late_p99': 0.160, 'late_p999': 4.25, 'late_max': 15.66,
-                    'over_2': 145, 'over_5': 31, 'over_10': 2, 'over_50': 0,
-                    'foreign_cpu': 0.33},
-    # where the time went: under SCHED_OTHER every stall > 2 ms was the loop thread runnable
-    # and waiting for a CPU (preempted by other processes); the two SCHED_FIFO stalls > 2 ms
-    # (5.4 and 2.1 ms, 35 ms apart) were neither on a CPU nor waiting for one: asleep past the
-    # deadline (a late wake-up: the VM, or a lock held by a preempted thread). No collection
-    # overlapped a stall (5 generation-0 collections per 20 s, after gc.freeze), no steal
-    # worth the name (10 ms in one condition).
-    'note': ('a shared machine: other sessions ran their own bring-ups (a SCHED_FIFO follow '
-             'and sim node pair) during fifo_idle, fifo_busy and normal_idle; foreign_cpu is '
-             'their load in CPUs, so "idle" here is not an idle machine'),
+    'date': '2026-12-02',
+    'machine': '2 cores (Firecracker VM, nested PVM, AMD EPYC vCPUs, Linux 6.18); SCHED_FIFO '
+               'granted',
+    'seconds_per_condition': 15,
+    'loop': 'sleep to the deadline, take from a loop reader, publish bytes (no executor)',
+    # late_* = wake-up lateness in ms; over_N = ticks later than N ms (of ~30 000)
+    'fifo_idle': {'late_p50': 0.043, 'late_p99': 0.101, 'late_p999': 0.390, 'late_max': 2.02,
+                  'over_2': 1, 'over_5': 0, 'over_10': 0, 'over_50': 0, 'foreign_cpu': 0.00},
+    'fifo_busy': {'late_p50': 0.018, 'late_p99': 0.048, 'late_p999': 0.156, 'late_max': 1.74,
+                  'over_2': 0, 'over_5': 0, 'over_10': 0, 'over_50': 0, 'foreign_cpu': 0.01},
+    'normal_idle': {'late_p50': 0.040, 'late_p99': 0.102, 'late_p999': 0.505, 'late_max': 4.14,
+                    'over_2': 5, 'over_5': 0, 'over_10': 0, 'over_50': 0,
+                    'foreign_cpu': 0.18},
+    'normal_busy': {'late_p50': 0.013, 'late_p99': 0.051, 'late_p999': 0.630, 'late_max': 7.94,
+                    'over_2': 19, 'over_5': 1, 'over_10': 0, 'over_50': 0,
+                    'foreign_cpu': 0.01},
+    # The run of 2026-12-01 (the loop then spun an EventsExecutor, 20 s per condition, other
+    # sessions' node sets running beside it): fifo_idle max 5.37 ms, fifo_busy 1.15 ms,
+    # normal_idle 17.04 ms, normal_busy 15.66 ms. Every SCHED_FIFO stall > 2 ms in either run
+    # was the loop thread neither on a CPU nor waiting for one (asleep past its deadline: the
+    # VM's vCPU not running), every SCHED_OTHER one the thread runnable and waiting for a CPU
+    # (preempted by another process).
+    'note': ("timer slack 1 ns (ladrc_contract.realtime) took the normal scheduler's median "
+             'lateness from 0.07-0.09 ms to 0.01-0.04 ms'),
 }
 
-# The largest stall seen in any SCHED_FIFO condition, rounded up to the next millisecond, times
-# a margin of 2. The margin because the tail is not bounded by what a short run saw: 80 s of
-# measurement see each rare event (a vCPU descheduled by the host, a kernel path that does not
-# preempt) only a few times, a test session runs for minutes, and the largest stalls grow with
-# the run length; 2x is the margin between "the worst seen" and "the worst a test may meet"
-# this bench can justify without a longer run (rerun with a larger --seconds to tighten it).
-STALL_MAX_S = 0.012  # max 5.37 ms (fifo_idle) -> 6 ms x 2
+# The largest stall seen in any SCHED_FIFO condition of either run above (the worse of the two
+# machines' days), rounded up to the next millisecond, times a margin of 2. The margin because
+# the tail is not bounded by what a short run saw: 60-80 s of measurement see each rare event
+# (a vCPU descheduled by the host, a kernel path that does not preempt) only a few times, a
+# test session runs for minutes, and the largest stalls grow with the run length; 2x is the
+# margin between "the worst seen" and "the worst a test may meet" this bench can justify
+# without a longer run (rerun with a larger --seconds to tighten it).
+STALL_MAX_S = 0.012  # max 5.37 ms (fifo_idle, 2026-12-01) -> 6 ms x 2
 # The same for the normal scheduler (what a loop meets when SCHED_FIFO is refused).
-STALL_MAX_NORMAL_S = 0.036  # max 17.04 ms (normal_idle) -> 18 ms x 2
+STALL_MAX_NORMAL_S = 0.036  # max 17.04 ms (normal_idle, 2026-12-01) -> 18 ms x 2
 
 PERIOD_NS = 500_000
 WARMUP_S = 1.0
@@ -202,18 +205,18 @@ def percentiles_ms(x_ns: list[int] | array) -> dict[str, float]:
 
 def worker(fifo: bool, seconds: float) -> dict:
     """Run the loop for ``seconds`` (after a warm-up); return its figures."""
+    from ladrc_contract.loop_io import LoopNode
     from ladrc_contract.realtime import apply_realtime
     from ladrc_follow.node import qos
     import rclpy
-    from rclpy.experimental import EventsExecutor
+    from rclpy.serialization import serialize_message
     from std_msgs.msg import Float64
 
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = rclpy.create_node('stalls_loop', context=context)
+    node = LoopNode('stalls_loop', context=context)
     pub = node.create_publisher(Float64, 'stalls/tick', qos.HIGH_RATE)
-    executor = EventsExecutor(context=context)
-    executor.add_node(node)
+    reader = node.create_loop_reader(Float64, 'stalls/input', qos.CONTROL_INPUT)
     applied, warnings = apply_realtime(50 if fifo else 0, [], True)
     tid = threading.get_native_id()
     policy = os.sched_getscheduler(0)
@@ -240,8 +243,9 @@ def worker(fifo: bool, seconds: float) -> dict:
     while True:
         remaining = next_ns - mono()
         if remaining > 0:
-            executor.spin_once(timeout_sec=remaining * 1e-9)
+            time.sleep(remaining * 1e-9)
             continue
+        reader.take()
         now = mono()
         if now >= end:
             break
@@ -266,7 +270,7 @@ def worker(fifo: bool, seconds: float) -> dict:
                                'neither_ms': round((interval - run - wait) * 1e-6, 3),
                                'timeslices': ss[2] - prev_ss[2], 'gc_overlap': gc_in})
         msg.data = float(i)
-        pub.publish(msg)
+        pub.publish(serialize_message(msg))
         next_ns += PERIOD_NS
         if mono() - next_ns > PERIOD_NS:
             next_ns = mono() + PERIOD_NS
@@ -274,7 +278,6 @@ def worker(fifo: bool, seconds: float) -> dict:
         prev_ss = _schedstat(fd)
     ru1, cpu1 = resource.getrusage(resource.RUSAGE_SELF), cpu_jiffies()
     os.close(fd)
-    executor.shutdown()
     node.destroy_node()
     rclpy.try_shutdown(context=context)
     lat = late[:i]
