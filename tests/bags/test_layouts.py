@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from xml.etree import ElementTree
 
-from ladrc_tools.bags.bag import TOPIC_TYPES
+from ladrc_contract.topics import TOPIC_TYPES
 from ladrc_tools.bags.layouts import PANELS, config_dir, foxglove_json, plotjuggler_xml
 from ladrc_tools.bags.typestore import ladrc_typestore
 

@@ -12,11 +12,12 @@ from dataclasses import replace
 import json
 import math
 
+from ladrc_contract.qos import TOPIC_QOS
 from ladrc_follow.control.follow import COMMANDS, FollowController
 from ladrc_follow.control.params import ControllerParams, dump_params
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
-from ladrc_tools.bags.bag import TOPIC_QOS, BagWriter, string_msg, write_run_bag
+from ladrc_tools.bags.bag import BagWriter, rosbags_qos, string_msg, write_run_bag
 from ladrc_tools.cli import main as ladrc
 from ladrc_tools.offline.replay import (
     KIND_NAMES,
@@ -281,8 +282,8 @@ def _rewrite(src, dst, slash: bool, storage: str = 'mcap'):
             name = c.topic if slash else c.topic.lstrip('/')
             conns[c.id] = w.add_connection(
                 name, c.msgtype, typestore=r.typestore,
-                offered_qos_profiles=[TOPIC_QOS.get(c.topic.lstrip('/'),
-                                                    TOPIC_QOS['/diagnostics'])])
+                offered_qos_profiles=[rosbags_qos(TOPIC_QOS.get(c.topic.lstrip('/'),
+                                                                TOPIC_QOS['/diagnostics']))])
         for c, ts, data in r.messages():
             w.write(conns[c.id], ts, data)
 

@@ -40,14 +40,9 @@ for _pkg in ('ladrc_sim', 'ladrc_tools', 'ladrc_follow'):
     if _src not in sys.path:
         sys.path.insert(0, _src)
 
+from ladrc_contract import qos  # noqa: E402
 from ladrc_sim.node import sim_node as sn  # noqa: E402
 from ladrc_tools.commissioning.conformance import sim_scenario_yaml  # noqa: E402
-from rclpy.qos import (  # noqa: E402
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-)
 
 DEFECTS = ('wrong_sign', 'gap_um', 'future_stamps', 'no_watchdog', 'seq_gaps', 'reliable_only',
            'ignore_enable', 'any_commander', 'speed_x3', 'one_fault')
@@ -127,13 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--start-gap-mm', type=float, default=5.0)
     a = ap.parse_args(ours)
     defects = set(a.defect)
-    if 'reliable_only' in defects:
-        sn.HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                  reliability=ReliabilityPolicy.RELIABLE,
-                                  durability=DurabilityPolicy.VOLATILE)
-        sn.CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                                      reliability=ReliabilityPolicy.RELIABLE,
-                                      durability=DurabilityPolicy.VOLATILE)
+    if 'reliable_only' in defects:  # the contract's profiles, reliable, in this process
+        qos.HIGH_RATE = qos.Qos(reliable=True, transient_local=False, depth=100)
+        qos.CONTROL_INPUT = qos.Qos(reliable=True, transient_local=False, depth=1)
     sn.SimNode, sn.DriveBridge = make_classes(defects)
     with tempfile.TemporaryDirectory(prefix='broken-driver-') as tmp:
         if not any(x.startswith('scenario:=') for x in ros_args):

@@ -81,3 +81,27 @@ def test_rosbags_serialization_is_byte_identical(name):
     assert theirs == bytes(b if i not in padding else theirs[i] for i, b in enumerate(ours))
     # rclpy's bytes (what the recorder writes to bags raw) read back to the same values
     assert store.deserialize_cdr(theirs, typename) == to_rosbags(msg, store, typename)
+
+
+def test_the_contract_codes_are_the_generated_constants():
+    """ladrc_contract.codes: each enum is its message's constants, name for name."""
+    from ladrc_contract.codes import MESSAGE_CONSTANTS
+
+    for enum, (typename, prefix) in MESSAGE_CONSTANTS.items():
+        cls = _rclpy_class(typename.rsplit('/', 1)[1])
+        generated = {k[len(prefix):]: v for k, v in vars(cls).items()
+                     if k.isupper() and k.startswith(prefix) and isinstance(v, int)
+                     and not k.startswith('SLOT')}
+        assert {m.name: int(m) for m in enum} == generated, enum.__name__
+
+
+def test_the_contract_services_and_topics_name_generated_types():
+    from ladrc_contract.services import FOLLOW_SERVICES, service_class
+    from ladrc_contract.topics import TOPIC_TYPES
+
+    for name, (srv_type, _, fields) in FOLLOW_SERVICES.items():
+        request = service_class(srv_type).Request()
+        assert all(hasattr(request, f) for f in fields.values()), name
+    for typename in TOPIC_TYPES.values():
+        pkg, _, name = typename.split('/')
+        assert hasattr(importlib.import_module(f'{pkg}.msg'), name), typename

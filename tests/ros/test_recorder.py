@@ -13,7 +13,8 @@ import time
 import pytest
 
 pytest.importorskip('rclpy')
-from ladrc_tools.bags.bag import SEQ_FIELD, TOPIC_TYPES, open_bag  # noqa: E402
+from ladrc_contract.topics import SEQ_FIELD, TOPIC_TYPES  # noqa: E402
+from ladrc_tools.bags.bag import open_bag  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]

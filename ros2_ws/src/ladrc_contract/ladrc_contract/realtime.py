@@ -31,6 +31,22 @@ def _each_thread(fn) -> None:
             pass  # the thread ended meanwhile
 
 
+def schedule_this_thread(fifo_priority: int) -> bool:
+    """Run the calling thread at SCHED_FIFO ``fifo_priority`` (0: the normal scheduler).
+
+    Returns False when the system refuses (the thread keeps its scheduling). For the helper
+    threads and processes of a loop process, which must not inherit the loop's priority.
+    """
+    try:
+        if fifo_priority > 0:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(fifo_priority))
+        else:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
 def _no_timer_slack(tid: int) -> None:
     with open(f'/proc/{tid}/timerslack_ns', 'w', encoding='ascii') as f:
         f.write('1')

@@ -17,12 +17,13 @@ scheduler like the loop.
 
 from __future__ import annotations
 
-import os
 import sys
 import threading
 from typing import Any
 
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from .realtime import schedule_this_thread
 
 SWITCH_INTERVAL_S = 1e-4
 """The interpreter's thread switch interval while the thread runs (default 5 ms): the loop
@@ -53,14 +54,9 @@ class ServiceThread:
         self._thread.start()
 
     def _run(self) -> None:
-        # a thread inherits its creator's scheduling: set this one's (module docstring)
-        try:
-            if self._priority > 0:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._priority))
-            else:
-                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        except (OSError, AttributeError):
-            pass  # the creator's scheduling stays: the loop's or the normal one
+        # a thread inherits its creator's scheduling: set this one's (module docstring); if
+        # refused, the creator's scheduling stays (the loop's or the normal one)
+        schedule_this_thread(self._priority)
         try:
             self.executor.spin()
         except ExternalShutdownException:

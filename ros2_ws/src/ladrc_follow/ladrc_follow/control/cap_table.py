@@ -32,6 +32,7 @@ import math
 from pathlib import Path
 from typing import Any, Mapping
 
+from ladrc_contract.codes import GapStatus
 import numpy as np
 import yaml
 
@@ -45,10 +46,7 @@ __all__ = ['CapTableParams', 'TableLimits', 'CapTable', 'RawToGap', 'TableError'
 TABLE_FORMAT = 'ladrc-cap-table/1'
 
 # ladrc_msgs/CapacitiveHeight STATUS_* (the same values as follow.GAP_STATUS_*)
-STATUS_OK = 0
-STATUS_OUT_OF_RANGE = 1
-STATUS_COLLISION = 2
-STATUS_FAULT = 3
+STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION, STATUS_FAULT = (int(c) for c in GapStatus)
 
 # grade -> largest figure (mm) of noise, repeatability and roughness, best first
 GRADES: tuple[tuple[str, float], ...] = (('A', 0.01), ('B', 0.02), ('C', 0.05))

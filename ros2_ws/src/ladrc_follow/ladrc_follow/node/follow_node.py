@@ -24,8 +24,8 @@ from __future__ import annotations
 
 from array import array
 from dataclasses import dataclass
+import functools
 import gc
-import json
 import math
 import queue
 import secrets
@@ -36,9 +36,25 @@ import time
 from typing import Any, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
+from ladrc_contract.codes import EventKind
+from ladrc_contract.events import EventFields
+from ladrc_contract.events import encode as encode_event
 from ladrc_contract.loop_io import LoopNode
+from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
+from ladrc_contract.services import FOLLOW_SERVICES, command_args, service_class
+from ladrc_contract.topics import (
+    COMMAND_TOPIC,
+    DIAGNOSTICS_TOPIC,
+    EVENTS_TOPIC,
+    FEEDBACK_TOPIC,
+    GAP_TOPIC,
+    LOCKSTEP_TOPIC,
+    PARAMETERS_TOPIC,
+    STATUS_TOPIC,
+)
 from ladrc_msgs.msg import (
     AxisFeedback,
     CapacitiveHeight,
@@ -46,16 +62,6 @@ from ladrc_msgs.msg import (
     FollowStatus,
     LockStep,
     VelocityCommand,
-)
-from ladrc_msgs.srv import (
-    GradientFollow,
-    HeightCompensation,
-    ResetFault,
-    SetMachining,
-    SetTarget,
-    StartFollow,
-    StopFollow,
-    TargetWave,
 )
 import numpy as np
 from rcl_interfaces.msg import (
@@ -84,15 +90,12 @@ from ..control.params import (
     params_from_dict,
 )
 from ..control.schema import Entry, entries, field_problems, param
-from . import qos
 from .gate_process import GateProcess
 from .housekeeping import Housekeeping
 from .loops import run_loop
 from .topology import TOPOLOGY_PERIOD_S, topology_problems
 
 LOOP_MODES = ('sync', 'deadline', 'lockstep')
-GAP_TOPIC, FEEDBACK_TOPIC = 'axis/capacitive_height', 'axis/feedback'
-COMMAND_TOPIC = 'axis/velocity_command'
 
 
 @dataclass(frozen=True)
@@ -297,12 +300,12 @@ class FollowNode(LoopNode):
         self.session = secrets.randbits(63) or 1
         self.sample_seq = 0  # the feedback sample (sync, deadline, timer) or step (lockstep)
 
-        control_in = qos.LOCKSTEP_INPUT if self.lockstep else qos.CONTROL_INPUT
-        high_rate = qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE
+        control_in = to_rclpy(qos.LOCKSTEP_INPUT if self.lockstep else qos.CONTROL_INPUT)
+        high_rate = to_rclpy(qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE)
         # the loop thread's readers (node/loops.py): taken from straight, parsed to plain values
         self.gap_reader = self.create_loop_reader(CapacitiveHeight, GAP_TOPIC, control_in)
         self.fb_reader = self.create_loop_reader(AxisFeedback, FEEDBACK_TOPIC, control_in)
-        self.step_reader = (self.create_loop_reader(LockStep, 'sim/lockstep', qos.LOCKSTEP_INPUT)
+        self.step_reader = (self.create_loop_reader(LockStep, LOCKSTEP_TOPIC, control_in)
                             if self.lockstep else None)
         self._gap_cdr = CdrPacker('ladrc_msgs/msg/CapacitiveHeight')
         self._fb_cdr = CdrPacker('ladrc_msgs/msg/AxisFeedback')
@@ -313,20 +316,16 @@ class FollowNode(LoopNode):
         self._fb_fields = [fi[n] for n in ('header.stamp.sec', 'header.stamp.nanosec', 'seq',
                                            'position_mm', 'drive_enabled', 'drive_fault')]
         self.pub_cmd = self.create_publisher(VelocityCommand, COMMAND_TOPIC, high_rate)
-        self.pub_status = self.create_publisher(FollowStatus, 'follow/status', high_rate)
-        self.pub_events = self.create_publisher(FollowEvent, 'follow/events', qos.EVENTS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos.DIAGNOSTICS)
-        self.pub_run_params = self.create_publisher(String, 'run/parameters', qos.RUN_TEXT)
+        self.pub_status = self.create_publisher(FollowStatus, STATUS_TOPIC, high_rate)
+        self.pub_events = self.create_publisher(FollowEvent, EVENTS_TOPIC, to_rclpy(qos.EVENTS))
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                              to_rclpy(qos.DIAGNOSTICS))
+        self.pub_run_params = self.create_publisher(String, PARAMETERS_TOPIC,
+                                                    to_rclpy(qos.RUN_TEXT))
 
-        self.create_service(StartFollow, 'follow/start', self._srv_start)
-        self.create_service(StopFollow, 'follow/stop', self._srv_stop)
-        self.create_service(SetTarget, 'follow/set_target', self._srv_set_target)
-        self.create_service(SetMachining, 'follow/set_machining', self._srv_machining)
-        self.create_service(HeightCompensation, 'follow/height_compensation',
-                            self._srv_compensation)
-        self.create_service(GradientFollow, 'follow/gradient_follow', self._srv_gradient)
-        self.create_service(ResetFault, 'follow/reset_fault', self._srv_reset)
-        self.create_service(TargetWave, 'follow/target_wave', self._srv_target_wave)
+        for name, (srv_type, service, _) in FOLLOW_SERVICES.items():
+            self.create_service(service_class(srv_type), service,
+                                functools.partial(self._serve_command, name))
 
         # The tick publishes pre-serialized CDR (ladrc_contract.cdr): filling rclpy messages
         # field by field cost more than the whole control step. One value list per message,
@@ -375,7 +374,7 @@ class FollowNode(LoopNode):
         self._publish_diagnostics()
 
     def _publish_parameters(self, text: str) -> None:
-        self._publish_event(FollowEvent.PARAMETERS, text=text)
+        self._publish_event(EventFields(EventKind.PARAMETERS, text=text))
         self.pub_run_params.publish(String(data=text))
 
     # ---- parameters -------------------------------------------------------------------
@@ -732,10 +731,9 @@ class FollowNode(LoopNode):
         if log:
             self.get_logger().info(f'zero velocity commanded: {reason}')
 
-    # ---- follow commands (services) ---------------------------------------------------
-    def _publish_event(self, kind: int, value_mm: float = math.nan, delay_s: float = 0.0,
-                       flag: bool = False, text: str = '', velocity_mm_s: float = 0.0,
-                       accel_mm_s2: float = 0.0) -> None:
+    # ---- follow commands (services, the housekeeping thread) ---------------------------
+    def _publish_event(self, fields: EventFields) -> None:
+        """Log an applied command or set on follow/events, with the tick it takes effect at."""
         ev = FollowEvent()
         # stamped at the node clock; lock step: at the sim time of the tick it takes effect at
         sec, nsec = divmod(self.tick_index * self.period_ns if self.lockstep
@@ -743,66 +741,22 @@ class FollowNode(LoopNode):
         ev.header.stamp.sec = sec
         ev.header.stamp.nanosec = nsec
         ev.tick = self.tick_index  # takes effect at the start of the next tick
-        ev.kind = kind
-        ev.value_mm = float(value_mm)
-        ev.delay_s = float(delay_s)
-        ev.velocity_mm_s = float(velocity_mm_s)
-        ev.accel_mm_s2 = float(accel_mm_s2)
-        ev.flag = bool(flag)
-        ev.text = text
+        ev.kind, ev.value_mm, ev.delay_s, ev.velocity_mm_s, ev.accel_mm_s2, ev.flag, ev.text = (
+            fields)
         self.pub_events.publish(ev)
 
-    def _command(self, response, kind: int, name: str, event: dict, **kwargs):
-        with self._lock:  # against a table change being accepted meanwhile
-            accepted, message = self.controller.command(name, **kwargs)
+    def _serve_command(self, name: str, request, response):
+        """Serve a follow command: queue it for the next tick and log it (the events codec)."""
+        args = command_args(name, request)
+        with self._lock:  # between two ticks; the event names the tick it takes effect at
+            accepted, message = self.controller.command(name, **args)
+            if accepted:
+                self._publish_event(encode_event(name, args))
         response.accepted = bool(accepted)
         response.message = str(message)
-        if accepted:
-            self._publish_event(kind, **event)
-        else:
+        if not accepted:
             self.get_logger().warning(f'{name} rejected: {message}')
         return response
-
-    def _srv_start(self, request, response):
-        return self._command(response, FollowEvent.START_FOLLOW, 'start_follow',
-                             {'value_mm': request.target_gap_mm},
-                             target_gap_mm=request.target_gap_mm)
-
-    def _srv_stop(self, request, response):
-        return self._command(response, FollowEvent.STOP_FOLLOW, 'stop_follow', {})
-
-    def _srv_set_target(self, request, response):
-        return self._command(response, FollowEvent.SET_TARGET, 'set_target',
-                             {'value_mm': request.target_gap_mm},
-                             target_gap_mm=request.target_gap_mm)
-
-    def _srv_machining(self, request, response):
-        return self._command(response, FollowEvent.MACHINING, 'machining',
-                             {'flag': request.machining}, on=bool(request.machining))
-
-    def _srv_compensation(self, request, response):
-        return self._command(response, FollowEvent.HEIGHT_COMPENSATION, 'height_compensation',
-                             {'value_mm': request.offset_mm, 'delay_s': request.delay_s},
-                             offset_mm=request.offset_mm, delay_s=request.delay_s)
-
-    def _srv_gradient(self, request, response):
-        return self._command(response, FollowEvent.GRADIENT_FOLLOW, 'gradient_follow',
-                             {'value_mm': request.target_gap_mm, 'delay_s': request.delay_s,
-                              'velocity_mm_s': request.velocity_mm_s,
-                              'accel_mm_s2': request.accel_mm_s2},
-                             target_gap_mm=request.target_gap_mm, delay_s=request.delay_s,
-                             velocity_mm_s=request.velocity_mm_s,
-                             accel_mm_s2=request.accel_mm_s2)
-
-    def _srv_reset(self, request, response):
-        return self._command(response, FollowEvent.RESET_FAULT, 'reset_fault', {})
-
-    def _srv_target_wave(self, request, response):
-        wave = {'kind': request.kind, 'freq_hz': request.freq_hz,
-                'freq_end_hz': request.freq_end_hz, 'duration_s': request.duration_s}
-        return self._command(response, FollowEvent.TARGET_WAVE, 'target_wave',
-                             {'value_mm': request.amp_mm, 'text': json.dumps(wave)},
-                             amp_mm=request.amp_mm, **wave)
 
     # ---- diagnostics ------------------------------------------------------------------
     def loop_statistics(self) -> dict[str, float]:

@@ -22,6 +22,8 @@ import multiprocessing
 import os
 import signal
 
+from ladrc_contract.realtime import schedule_this_thread
+
 from ..control.params import ControllerParams, ParameterError, check_gate
 
 GATE_TIMEOUT_S = 10.0
@@ -44,10 +46,7 @@ def _worker_setup() -> None:
     too; the node ends it (:meth:`GateProcess.close`).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (OSError, AttributeError):
-        pass
+    schedule_this_thread(0)
 
 
 class GateProcess:

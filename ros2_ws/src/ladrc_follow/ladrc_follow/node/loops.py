@@ -24,15 +24,41 @@ An exception on the tick path publishes the zero command and faults the controll
 
 from __future__ import annotations
 
+import threading
 import time
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
-from ladrc_contract.loop_io import SampleWait
+from ladrc_contract.loop_io import LoopReader, SampleWait
 
-from ..control.follow import FollowState
+from ..control.follow import FollowController, FollowState
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .follow_node import FollowNode
+
+class FollowNode(Protocol):
+    """What the loop thread uses of the follow node (``node/follow_node.py``)."""
+
+    loop_mode: str
+    period_ns: int
+    sync_wait_ns: int
+    context: Any
+    gap_reader: LoopReader
+    fb_reader: LoopReader
+    step_reader: LoopReader | None
+    new_gap: bool
+    new_feedback: bool
+    controller: FollowController
+    node_params: Any
+    _lock: threading.Lock
+    _step: tuple | None
+    _step_wall_ns: int
+
+    def take_samples(self) -> None: ...  # noqa: D102
+    def tick(self) -> None: ...  # noqa: D102
+    def tick_sync(self) -> None: ...  # noqa: D102
+    def tick_step(self) -> None: ...  # noqa: D102
+    def step_ready(self) -> bool: ...  # noqa: D102
+    def on_tick_exception(self, exc: BaseException) -> None: ...  # noqa: D102
+    def publish_zero(self, reason: str) -> None: ...  # noqa: D102
+
 
 LOCKSTEP_POLL_NS = 50_000_000  # lock step: how long one wait for a step lasts (the hang check)
 

@@ -29,14 +29,14 @@ from dataclasses import asdict, dataclass
 import math
 from typing import Mapping
 
+from ladrc_contract.codes import LimitFlag
 import numpy as np
 
 TOL_MM = 0.05
 HOLD_S = 0.05
 _V_KEYS = ('limit_v', 'saturated', 'v_limited')
 _A_KEYS = ('limit_a', 'rate_limited', 'a_limited')
-LIMIT_FLAG_VELOCITY = 1
-LIMIT_FLAG_ACCELERATION = 2
+LIMIT_FLAG_VELOCITY, LIMIT_FLAG_ACCELERATION = int(LimitFlag.VELOCITY), int(LimitFlag.ACCELERATION)
 
 
 @dataclass(frozen=True)

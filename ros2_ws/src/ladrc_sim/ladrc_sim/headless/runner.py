@@ -29,8 +29,9 @@ from dataclasses import dataclass, field
 import math
 from pathlib import Path
 import time
-from typing import Any, Mapping, NamedTuple, Protocol, runtime_checkable
+from typing import Any, Mapping, Protocol, runtime_checkable
 
+from ladrc_contract.tick import TickInput
 import numpy as np
 
 from ..models.axis import H_S, Axis
@@ -39,20 +40,6 @@ from ..models.sensor import Sensor, oscillator_hz
 from ..models.sheet import Sheet
 from .metrics import HOLD_S, TOL_MM, Metrics, compute_metrics
 from .scenario import Scenario, load_scenario
-
-
-class TickInput(NamedTuple):
-    """Inputs of one controller tick (what a driver would publish)."""
-
-    t_s: float
-    gap_mm: float
-    gap_valid: bool
-    gap_stamp_s: float
-    encoder_mm: float
-    encoder_stamp_s: float
-    drive_enabled: bool
-    drive_fault: bool
-    gap_status: int = 0  # CapacitiveHeight.STATUS_*: 0 ok, 1 out of range, 2 collision
 
 
 @runtime_checkable

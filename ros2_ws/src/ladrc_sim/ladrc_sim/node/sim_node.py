@@ -45,24 +45,26 @@ import time
 from typing import Any, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
 from ladrc_contract.loop_io import LoopNode, SampleWait
+from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.service_thread import ServiceThread
-from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
-from ladrc_msgs.srv import (
-    GradientFollow,
-    HeightCompensation,
-    ResetFault,
-    SetMachining,
-    SetTarget,
-    StartFollow,
-    StopFollow,
-    TargetWave,
+from ladrc_contract.services import FOLLOW_SERVICES, fill_request, service_class
+from ladrc_contract.topics import (
+    COMMAND_TOPIC,
+    DIAGNOSTICS_TOPIC,
+    FEEDBACK_TOPIC,
+    GAP_TOPIC,
+    LOCKSTEP_TOPIC,
+    SCENARIO_TOPIC,
+    TRUTH_TOPIC,
 )
+from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
+from ladrc_msgs.srv import ResetFault
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
@@ -75,44 +77,6 @@ from ..headless.scenario import (
 )
 from ..models.sensor import oscillator_hz_scalar
 from .commander_lock import CommanderLock, Identity, describe
-
-# The contract's QoS (docs/interfaces.md, QoS): best-effort high-rate publishers (every sample
-# has a seq counter, so loss is measured); a keep-last-1 best-effort command input so the drive
-# always acts on the freshest command.
-HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                       reliability=ReliabilityPolicy.BEST_EFFORT,
-                       durability=DurabilityPolicy.VOLATILE)
-RUN_TEXT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-CONTROL_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                           reliability=ReliabilityPolicy.BEST_EFFORT,
-                           durability=DurabilityPolicy.VOLATILE)
-# lock step: reliable (ladrc_follow/node/qos.py, "Lock step")
-LOCKSTEP_HIGH_RATE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000,
-                                reliability=ReliabilityPolicy.RELIABLE,
-                                durability=DurabilityPolicy.VOLATILE)
-LOCKSTEP_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                            reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.VOLATILE)
-# the drive's command input in lock step: deep, so that a foreign command (refused by the
-# commander lock) cannot supersede the commander's answer to the step
-LOCKSTEP_COMMAND_INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                    reliability=ReliabilityPolicy.RELIABLE,
-                                    durability=DurabilityPolicy.VOLATILE)
-
-SERVICES = {
-    'start_follow': (StartFollow, 'follow/start'),
-    'stop_follow': (StopFollow, 'follow/stop'),
-    'reset_fault': (ResetFault, 'follow/reset_fault'),
-    'set_target': (SetTarget, 'follow/set_target'),
-    'machining': (SetMachining, 'follow/set_machining'),
-    'height_compensation': (HeightCompensation, 'follow/height_compensation'),
-    'gradient_follow': (GradientFollow, 'follow/gradient_follow'),
-    'target_wave': (TargetWave, 'follow/target_wave'),
-}
-# scenario argument name -> service request field
-REQUEST_FIELDS = {'on': 'machining'}
 
 
 class _Command(NamedTuple):
@@ -422,24 +386,25 @@ class SimNode(LoopNode):
             raise ValueError('watchdog_timeout_s must be > 0')
         self.frame_id = self.get_parameter('frame_id').value
         self.raw_only = bool(self.get_parameter('raw_only').value)
-        high_rate = LOCKSTEP_HIGH_RATE if self.lockstep else HIGH_RATE
-        self.pub_gap = self.create_publisher(CapacitiveHeight, 'axis/capacitive_height',
-                                             high_rate)
-        self.pub_fb = self.create_publisher(AxisFeedback, 'axis/feedback', high_rate)
-        self.pub_truth = self.create_publisher(SimTruth, 'sim/truth', high_rate)
-        self.pub_step = (self.create_publisher(LockStep, 'sim/lockstep', LOCKSTEP_INPUT)
+        high_rate = to_rclpy(qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE)
+        self.pub_gap = self.create_publisher(CapacitiveHeight, GAP_TOPIC, high_rate)
+        self.pub_fb = self.create_publisher(AxisFeedback, FEEDBACK_TOPIC, high_rate)
+        self.pub_truth = self.create_publisher(SimTruth, TRUTH_TOPIC, high_rate)
+        self.pub_step = (self.create_publisher(LockStep, LOCKSTEP_TOPIC, high_rate)
                          if self.lockstep else None)
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                              to_rclpy(qos.DIAGNOSTICS))
         # The scenario text, latched: a recorder puts it into the bag (self-describing runs).
-        self.pub_scenario = self.create_publisher(String, 'run/scenario', RUN_TEXT)
+        self.pub_scenario = self.create_publisher(String, SCENARIO_TOPIC,
+                                                  to_rclpy(qos.RUN_TEXT))
         self.pub_scenario.publish(String(data=self.scenario_text()))
-        self.follow_clients = {name: self.create_client(srv, topic)
-                        for name, (srv, topic) in SERVICES.items()}
+        self.follow_clients = {name: self.create_client(service_class(srv), service)
+                               for name, (srv, service, _) in FOLLOW_SERVICES.items()}
         self.bridge: DriveBridge | None = None
         # the drive's command input, taken from by the loop thread (DriveBridge.take_commands)
         self.cmd_reader = self.create_loop_reader(
-            VelocityCommand, 'axis/velocity_command',
-            LOCKSTEP_COMMAND_INPUT if self.lockstep else CONTROL_INPUT)
+            VelocityCommand, COMMAND_TOPIC,
+            to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.CONTROL_INPUT))
         self.cmd_cdr = CdrPacker('ladrc_msgs/msg/VelocityCommand')
         self.cmd_fields = [self.cmd_cdr.index[n] for n in COMMAND_FIELDS]
         # what the loop publishes: pre-serialized CDR from one value list per message
@@ -486,12 +451,7 @@ class SimNode(LoopNode):
 
     def send_follow_command(self, name: str, args: dict[str, Any]):
         """Call the controller's service for a scenario follow command; return the future."""
-        srv, topic = SERVICES[name]
-        request = srv.Request()
-        for key, value in args.items():
-            setattr(request, REQUEST_FIELDS.get(key, key), type(getattr(request, REQUEST_FIELDS
-                                                                        .get(key, key)))(value))
-        future = self.follow_clients[name].call_async(request)
+        future = self.follow_clients[name].call_async(fill_request(name, args))
         future.add_done_callback(lambda f, n=name: self._command_done(n, f))
         return future
 
@@ -559,7 +519,7 @@ class SimNode(LoopNode):
 
     def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""
-        needed = {e.name for e in self.scenario.timeline if e.name in SERVICES}
+        needed = {e.name for e in self.scenario.timeline if e.name in FOLLOW_SERVICES}
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if all(self.follow_clients[n].service_is_ready() for n in needed) and (

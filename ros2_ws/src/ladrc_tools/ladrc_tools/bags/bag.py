@@ -28,7 +28,6 @@ per topic.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, is_dataclass
-import json
 import math
 import os
 from pathlib import Path
@@ -37,6 +36,11 @@ import struct
 import time
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
+from ladrc_contract import qos as contract_qos
+from ladrc_contract.codes import EventKind, FollowState, GapStatus
+from ladrc_contract.events import COMMAND_KIND, EventFields, encode
+from ladrc_contract.qos import TOPIC_QOS
+from ladrc_contract.topics import SEQ_FIELD, TOPIC_TYPES
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import (
@@ -59,54 +63,17 @@ BAG_VERSION = 9  # rosbag2 metadata version written by Jazzy
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 SUFFIX = {'mcap': '.mcap', 'sqlite3': '.db3'}
 
-# Contract topics (docs/interfaces.md) and their types.
-TOPIC_TYPES: dict[str, str] = {
-    'axis/capacitive_height': 'ladrc_msgs/msg/CapacitiveHeight',
-    'axis/feedback': 'ladrc_msgs/msg/AxisFeedback',
-    'axis/velocity_command': 'ladrc_msgs/msg/VelocityCommand',
-    'follow/status': 'ladrc_msgs/msg/FollowStatus',
-    'follow/events': 'ladrc_msgs/msg/FollowEvent',
-    'sim/truth': 'ladrc_msgs/msg/SimTruth',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-    'run/parameters': 'std_msgs/msg/String',
-    'run/scenario': 'std_msgs/msg/String',
-}
-# 2 kHz topics whose first field after the header is a +1-per-message counter.
-SEQ_FIELD: dict[str, str] = {
-    'axis/capacitive_height': 'seq',
-    'axis/feedback': 'seq',
-    'axis/velocity_command': 'seq',
-    'follow/status': 'tick',
-    'sim/truth': 'seq',
-}
-
 _ZERO = QosTime(0, 0)
 # rmw's "infinite" duration as rosbag2 stores it (deadline / lifespan / lease unset).
 _INF = QosTime(2147483647, 4294967295)
 
 
-def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 10) -> Qos:
-    """Return a rosbags QoS profile (keep-last ``depth``) for ``offered_qos_profiles``."""
-    return Qos(QosHistory.KEEP_LAST, depth,
-               QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
-               QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
+def rosbags_qos(q: contract_qos.Qos) -> Qos:
+    """Return the rosbags profile of a contract profile, for ``offered_qos_profiles``."""
+    return Qos(QosHistory.KEEP_LAST, q.depth,
+               QosReliability.RELIABLE if q.reliable else QosReliability.BEST_EFFORT,
+               QosDurability.TRANSIENT_LOCAL if q.transient_local else QosDurability.VOLATILE,
                _INF, _INF, QosLiveliness.AUTOMATIC, _INF, False)
-
-
-# The publishers' QoS of the contract (ladrc_follow.node.qos): RELIABLE keep-last 100 on the
-# 2 kHz topics; RELIABLE + TRANSIENT_LOCAL (latched) on events (depth 100) and run/* texts
-# (depth 1).
-QOS_2KHZ = make_qos(False, False, 100)
-QOS_EVENTS = make_qos(True, True, 100)
-QOS_LATCHED = make_qos(True, True, 1)
-QOS_DEFAULT = make_qos(True, False, 10)
-TOPIC_QOS: dict[str, Qos] = {
-    **{t: QOS_2KHZ for t in SEQ_FIELD},
-    'follow/events': QOS_EVENTS,
-    '/diagnostics': QOS_DEFAULT,
-    'run/parameters': QOS_LATCHED,
-    'run/scenario': QOS_LATCHED,
-}
 
 
 class BagError(Exception):
@@ -210,7 +177,8 @@ class BagWriter:
         if msgtype not in self.typestore.types:
             raise BagError(f'message type {msgtype!r} of {topic!r} is unknown to the typestore')
         if qos is None:
-            qos = TOPIC_QOS.get(short, TOPIC_QOS.get(name, QOS_DEFAULT))
+            qos = rosbags_qos(TOPIC_QOS.get(short, TOPIC_QOS.get(name,
+                                                                 contract_qos.DIAGNOSTICS)))
         qos_t = (qos,) if isinstance(qos, Qos) else tuple(qos)
         msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
         t = self._topics[name] = _Topic(name, msgtype, msgdef,
@@ -548,14 +516,6 @@ def stamp_parts(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---- headless runs ----------------------------------------------------------------------
-EVENT_KIND = {'start_follow': 1, 'stop_follow': 2, 'set_target': 3, 'machining': 4,
-              'height_compensation': 5, 'gradient_follow': 6, 'reset_fault': 7,
-              'target_wave': 9}
-_EVENT_VALUE = {'start_follow': 'target_gap_mm', 'set_target': 'target_gap_mm',
-                'height_compensation': 'offset_mm', 'gradient_follow': 'target_gap_mm',
-                'target_wave': 'amp_mm'}
-STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION = 0, 1, 2
-STATE_IDLE, STATE_PREINTERPOLATE, STATE_LADRC, STATE_FAULT = 0, 2, 4, 5
 FRAME_ID = 'z_axis'  # the sim node's frame_id (its parameter's default)
 COMMANDER = '/ladrc_follow'  # the follow node's fully qualified name (VelocityCommand.commander)
 
@@ -644,8 +604,8 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     encoder = np.asarray(result.encoder_mm, dtype=float)
     command = np.asarray(result.command_mm_s, dtype=float)
     target = np.asarray(result.target_gap_mm, dtype=float)
-    status_code = np.where(valid, STATUS_OK,
-                           np.where(collision, STATUS_COLLISION, STATUS_OUT_OF_RANGE))
+    status_code = np.where(valid, GapStatus.OK,
+                           np.where(collision, GapStatus.COLLISION, GapStatus.OUT_OF_RANGE))
     enc_vel = np.diff(encoder, prepend=encoder[:1]) / h_s  # what a driver differentiates
     # the raw value behind each reading, as the sim node sends it (models/sensor.py)
     raw_hz = result.raw_hz() if callable(getattr(result, 'raw_hz', None)) else np.nan
@@ -669,7 +629,8 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
         # FollowController.enable: approaching or following, or a command not yet zero
         # (a retract, a ramp down)
         state = np.nan_to_num(state).astype(np.uint8)
-        enable = ((state >= STATE_PREINTERPOLATE) & (state <= STATE_LADRC)) | (command != 0.0)
+        enable = (((state >= FollowState.PREINTERPOLATE) & (state <= FollowState.LADRC))
+                  | (command != 0.0))
     else:
         enable = np.isfinite(target)
     # the runner's convention is lock step's: command k answers step k (docs/follow-node.md)
@@ -713,27 +674,19 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     Header = store.types['std_msgs/msg/Header']
     Time = store.types['builtin_interfaces/msg/Time']
 
-    def event(tick: int, kind: int, value: float = float('nan'), delay: float = 0.0,
-              flag: bool = False, text: str = '') -> tuple[int, bytes]:
+    def event(tick: int, f: EventFields) -> tuple[int, bytes]:
         sec, nsec = divmod(int(round(t[tick] * 1e9)), 1_000_000_000)
         msg = Event(header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=''),
-                    tick=tick, kind=kind, value_mm=value, delay_s=delay, velocity_mm_s=0.0,
-                    accel_mm_s2=0.0, flag=flag, text=text)
+                    tick=tick, kind=f.kind, value_mm=f.value_mm, delay_s=f.delay_s,
+                    velocity_mm_s=f.velocity_mm_s, accel_mm_s2=f.accel_mm_s2, flag=f.flag,
+                    text=f.text)
         return tick, bytes(store.serialize_cdr(msg, 'ladrc_msgs/msg/FollowEvent'))
 
-    events = [event(0, 8, text=params_yaml)] if params_yaml else []
+    # as the follow node logs them (ladrc_contract.events)
+    events = [event(0, EventFields(EventKind.PARAMETERS, text=params_yaml))] if params_yaml else []
     for e in timeline:
-        if not getattr(e, 'is_command', False) or e.name not in EVENT_KIND:
-            continue
-        tick = min(n - 1, int(round(e.t_s / h_s)))
-        a = e.args
-        value = float(a[_EVENT_VALUE[e.name]]) if e.name in _EVENT_VALUE else float('nan')
-        if e.name == 'target_wave':  # follow_node.py: the wave's other arguments as JSON
-            wave = {k: a[k] for k in ('kind', 'freq_hz', 'freq_end_hz', 'duration_s')}
-            events.append(event(tick, EVENT_KIND[e.name], value, text=json.dumps(wave)))
-            continue
-        events.append(event(tick, EVENT_KIND[e.name], value, float(a.get('delay_s', 0.0)),
-                            bool(a.get('on', False))))
+        if getattr(e, 'is_command', False) and e.name in COMMAND_KIND:
+            events.append(event(min(n - 1, int(round(e.t_s / h_s))), encode(e.name, e.args)))
     events.sort(key=lambda x: x[0])
 
     tmp = path.with_name(f'.{path.name}.partial')
@@ -1300,4 +1253,4 @@ def storage_of(name: str) -> str:
 
 
 __all__ = ['Bag', 'BagError', 'BagWriter', 'count_lost', 'fq', 'open_bag', 'read_text_topic',
-           'seq_of', 'string_msg', 'TOPIC_QOS', 'TOPIC_TYPES', 'SEQ_FIELD', 'make_qos']
+           'seq_of', 'string_msg', 'rosbags_qos']

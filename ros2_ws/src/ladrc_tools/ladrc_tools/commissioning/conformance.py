@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass, field, fields
 import math
 from typing import Any, Callable
 
+from ladrc_contract.codes import GapStatus
 import numpy as np
 from scipy import stats
 
@@ -37,7 +38,7 @@ CONTRACT_TYPES = {
     COMMAND_TOPIC: 'ladrc_msgs/msg/VelocityCommand',
 }
 # CapacitiveHeight.STATUS_* (ladrc_msgs)
-STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION, STATUS_FAULT = 0, 1, 2, 3
+STATUS_OK, STATUS_OUT_OF_RANGE, STATUS_COLLISION, STATUS_FAULT = (int(c) for c in GapStatus)
 
 # Segments of a run, in the order the prober plays them (docs/conformance.md, "The run").
 PASSIVE, ENABLE, UP, DOWN, EXCITATION, WATCHDOG, SILENCE = (

@@ -20,11 +20,12 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
+from ladrc_contract.codes import GapStatus
 import numpy as np
 
 from .excitation import H_S, Excitation
 
-STATUS_COLLISION = 2  # CapacitiveHeight.STATUS_COLLISION
+STATUS_COLLISION = int(GapStatus.COLLISION)
 
 
 @dataclass(frozen=True)

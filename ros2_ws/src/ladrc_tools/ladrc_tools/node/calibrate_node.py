@@ -38,16 +38,16 @@ import sys
 import time
 from typing import Any, NamedTuple
 
+from ladrc_contract import qos
+from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
 from ladrc_follow.node.follow_node import sim_time_s
-from ladrc_follow.node.qos import HIGH_RATE, LOCKSTEP_HIGH_RATE, LOCKSTEP_INPUT, RUN_TEXT
 from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import Calibrate
 import numpy as np
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
@@ -63,9 +63,7 @@ from ..commissioning.calibration import (
 )
 
 # every sample of the sweep is wanted (not only the freshest): a deep best-effort reader
-RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
-                    reliability=ReliabilityPolicy.BEST_EFFORT,
-                    durability=DurabilityPolicy.VOLATILE)
+RECORD = qos.HIGH_RATE.with_depth(200)
 NODE_NAME = 'ladrc_calibrate'
 
 
@@ -124,21 +122,21 @@ class CalibrateNode(Node):
         # lock step: the step waiting for its samples, the step being ticked (its time)
         self.step: tuple[int, int, bool, int, bool] | None = None
         self.step_k = 0
-        record = RECORD
+        record = to_rclpy(qos.LOCKSTEP_HIGH_RATE.with_depth(200) if self.lockstep else RECORD)
         if self.lockstep:
-            record = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
-                                reliability=ReliabilityPolicy.RELIABLE,
-                                durability=DurabilityPolicy.VOLATILE)
-            self.create_subscription(LockStep, 'sim/lockstep', self._on_step, LOCKSTEP_INPUT)
+            self.create_subscription(LockStep, 'sim/lockstep', self._on_step,
+                                     to_rclpy(qos.LOCKSTEP_INPUT))
         self.create_subscription(CapacitiveHeight, 'axis/capacitive_height', self._on_gap,
                                  record)
         self.create_subscription(AxisFeedback, 'axis/feedback', self._on_feedback, record)
         truth_topic = self.get_parameter('truth_topic').value
         if truth_topic:
             self.create_subscription(SimTruth, truth_topic, self._on_truth, record)
-        self.pub_cmd = self.create_publisher(VelocityCommand, 'axis/velocity_command',
-                                             LOCKSTEP_HIGH_RATE if self.lockstep else HIGH_RATE)
-        self.pub_result = self.create_publisher(String, 'calibration/result', RUN_TEXT)
+        self.pub_cmd = self.create_publisher(
+            VelocityCommand, 'axis/velocity_command',
+            to_rclpy(qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE))
+        self.pub_result = self.create_publisher(String, 'calibration/result',
+                                                to_rclpy(qos.RUN_TEXT))
         self.create_service(Calibrate, 'calibrate', self._srv_calibrate)
         self._cmd = VelocityCommand()
         self._cmd.header.frame_id = 'z_axis'

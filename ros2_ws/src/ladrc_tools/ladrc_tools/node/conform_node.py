@@ -120,10 +120,10 @@ class ConformProbe:
 
     def __init__(self, context, plan: Plan, tolerances: Tolerances, bag_path: Path,
                  log: Callable[[str], None] = print) -> None:
-        from ladrc_follow.node import qos
+        from ladrc_contract import qos
+        from ladrc_contract.qos import to_rclpy
         from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, VelocityCommand
         import rclpy
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         self.plan, self.tol, self.log = plan, tolerances, log
         self._qos = qos
@@ -131,9 +131,7 @@ class ConformProbe:
         self._clock = self.node.get_clock()
         # Best-effort readers match any writer (docs/conformance.md, "QoS"); depth is not part
         # of matching, so a deep history still receives what a keep-last-1 reader would.
-        reader = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=READER_DEPTH,
-                            reliability=ReliabilityPolicy.BEST_EFFORT,
-                            durability=DurabilityPolicy.VOLATILE)
+        reader = to_rclpy(qos.HIGH_RATE.with_depth(READER_DEPTH))
         self._types = {GAP_TOPIC: CapacitiveHeight, FEEDBACK_TOPIC: AxisFeedback}
         self._subs = {t: self.node.create_subscription(c, t, lambda _m: None, reader, raw=True)
                       for t, c in self._types.items()}
@@ -141,11 +139,11 @@ class ConformProbe:
         from std_msgs.msg import String
 
         self._extra_subs = {
-            '/diagnostics': self.node.create_subscription(DiagnosticArray, '/diagnostics',
-                                                          lambda _m: None, 100, raw=True),
-            'run/scenario': self.node.create_subscription(String, 'run/scenario',
-                                                          lambda _m: None, qos.RUN_TEXT,
-                                                          raw=True)}
+            '/diagnostics': self.node.create_subscription(
+                DiagnosticArray, '/diagnostics', lambda _m: None,
+                to_rclpy(qos.DIAGNOSTICS.with_depth(100)), raw=True),
+            'run/scenario': self.node.create_subscription(
+                String, 'run/scenario', lambda _m: None, to_rclpy(qos.RUN_TEXT), raw=True)}
         self._VelocityCommand = VelocityCommand
         self._cmd = VelocityCommand()
         self._cmd.header.frame_id = 'conform'
@@ -305,20 +303,18 @@ class ConformProbe:
     # ---- commanding -------------------------------------------------------------------------
     def _make_publisher(self) -> str:
         """Create the command publisher: the contract's QoS, or what the driver's input needs."""
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from ladrc_contract.qos import to_rclpy
 
         subs = self.graph.subscriptions.get(COMMAND_TOPIC, [])
         bad = [e for e in subs if not compatible(CONTRACT_WRITER, e)[0]]
-        profile = self._qos.HIGH_RATE
+        profile = to_rclpy(self._qos.HIGH_RATE)
         self.command_qos = 'BEST_EFFORT, VOLATILE (the contract)'
         if bad:
             # Measure the other rules anyway: a RELIABLE writer matches both kinds of reader.
             durable = any(e.durability == 'TRANSIENT_LOCAL' for e in bad)
-            profile = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=100,
-                reliability=ReliabilityPolicy.RELIABLE,
-                durability=(DurabilityPolicy.TRANSIENT_LOCAL if durable
-                            else DurabilityPolicy.VOLATILE))
+            # reliable (transient local if the reader is): the events' or the lock step's
+            profile = to_rclpy(self._qos.EVENTS if durable
+                               else self._qos.LOCKSTEP_HIGH_RATE.with_depth(100))
             self.command_qos = ('RELIABLE' + (', TRANSIENT_LOCAL' if durable else '')
                                 + ": the driver's command input does not take the contract's "
                                 'best-effort commands (qos_command_input); the motion tests '

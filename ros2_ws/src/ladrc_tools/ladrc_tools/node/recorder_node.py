@@ -11,7 +11,7 @@ topic (summary and /diagnostics). No executor handles the 2 kHz topics: a callba
 class; taking them in batches costs a few microseconds each, and the readers' history (5 s)
 outlasts any pause. The receive time is the middleware's reception stamp of each message.
 
-QoS matches the publishers (bag.TOPIC_QOS): BEST_EFFORT keep-last 100 on the 2 kHz topics,
+QoS matches the publishers (``ladrc_contract.qos.TOPIC_QOS``): BEST_EFFORT on the 2 kHz topics,
 RELIABLE + TRANSIENT_LOCAL on ``follow/events`` (depth 100) and ``run/*`` (depth 1), default on
 ``/diagnostics``. The same profiles go into the bag as ``offered_qos_profiles``.
 
@@ -43,38 +43,24 @@ import threading
 import time
 from typing import Any
 
-from ..bags.bag import (
-    SEQ_FIELD,
-    TOPIC_QOS,
-    TOPIC_TYPES,
-    BagError,
-    BagWriter,
-    seq_of,
-    storage_of,
-)
+from ladrc_contract import qos
+from ladrc_contract.qos import TOPIC_QOS, to_rclpy
+from ladrc_contract.topics import SEQ_FIELD, TOPIC_TYPES
 
-READER_DEPTH = 10000  # 5 s of a 2 kHz topic
-LOCKSTEP_READER_DEPTH = 20000  # 10 s: the lock-step writers' history (ladrc_follow.node.qos)
+from ..bags.bag import BagError, BagWriter, seq_of, storage_of
 
 
 def _qos_profile(topic: str, reliable: bool = False) -> Any:
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    """Return the reader of ``topic``: the publishers' profile, deeper on the 2 kHz topics.
 
-    q = TOPIC_QOS[topic]
-    if reliable and topic in SEQ_FIELD:
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LOCKSTEP_READER_DEPTH,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
-    # The reader's own history must outlast a stall of this process (GIL held by the writer
-    # thread while it closes a segment, a loaded machine): keep-last 100 at 2 kHz is only
-    # 50 ms. Depth is not part of QoS matching, so a deep reader still matches the publishers.
-    depth = max(q.depth, READER_DEPTH) if topic in SEQ_FIELD else q.depth
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth,
-        reliability=(ReliabilityPolicy.RELIABLE if q.reliability.name == 'RELIABLE'
-                     else ReliabilityPolicy.BEST_EFFORT),
-        durability=(DurabilityPolicy.TRANSIENT_LOCAL if q.durability.name == 'TRANSIENT_LOCAL'
-                    else DurabilityPolicy.VOLATILE))
+    The reader's history must outlast the time between two takes and a stall of this process
+    (the bag writer's thread holding the GIL while it closes a segment, a loaded machine):
+    5 s (``RECORDER_READER``); lock step (``reliable``): the writers' 10 s. Depth is not part
+    of QoS matching, so a deep reader still matches the publishers.
+    """
+    if topic not in SEQ_FIELD:
+        return to_rclpy(TOPIC_QOS[topic])
+    return to_rclpy(qos.LOCKSTEP_HIGH_RATE if reliable else qos.RECORDER_READER)
 
 
 def _msg_class(msgtype: str) -> Any:

@@ -27,6 +27,8 @@ from pathlib import Path
 import time
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
+from ladrc_contract.codes import FollowState, LimitFlag
+from ladrc_contract.events import decode as decode_event
 from ladrc_follow.control.follow import INTERNALS_KEYS, FollowController, TickInput
 from ladrc_follow.control.params import (
     ControllerParams,
@@ -54,8 +56,8 @@ KIND_NAMES = {1: 'start_follow', 2: 'stop_follow', 3: 'set_target', 4: 'machinin
               5: 'height_compensation', 6: 'gradient_follow', 7: 'reset_fault',
               8: 'parameters', 9: 'target_wave'}
 PARAMETERS = 8
-STATE_NAMES = ('IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT')
-LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
+STATE_NAMES = tuple(s.name for s in FollowState)
+LIMIT_VELOCITY, LIMIT_ACCELERATION = int(LimitFlag.VELOCITY), int(LimitFlag.ACCELERATION)
 
 # The TickInput fields, as recorded in FollowStatus (same names).
 INPUT_FIELDS = ('t_s', 'gap_mm', 'gap_valid', 'gap_stamp_s', 'encoder_mm', 'encoder_stamp_s',
@@ -412,26 +414,7 @@ def load_recording(path: str | Path,
 # ---- events -> controller ---------------------------------------------------------------------
 def event_command(ev: RecordedEvent) -> tuple[str, dict[str, Any]]:
     """Return ``(command name, kwargs)`` that re-issue ``ev`` exactly as follow_node did."""
-    k = ev.kind
-    if k == 1:
-        return 'start_follow', {'target_gap_mm': ev.value_mm}
-    if k == 2:
-        return 'stop_follow', {}
-    if k == 3:
-        return 'set_target', {'target_gap_mm': ev.value_mm}
-    if k == 4:
-        return 'machining', {'on': ev.flag}
-    if k == 5:
-        return 'height_compensation', {'offset_mm': ev.value_mm, 'delay_s': ev.delay_s}
-    if k == 6:
-        return 'gradient_follow', {'target_gap_mm': ev.value_mm, 'delay_s': ev.delay_s,
-                                   'velocity_mm_s': ev.velocity_mm_s,
-                                   'accel_mm_s2': ev.accel_mm_s2}
-    if k == 7:
-        return 'reset_fault', {}
-    if k == 9:
-        return 'target_wave', {'amp_mm': ev.value_mm, **json.loads(ev.text)}
-    raise ValueError(f'follow/events kind {k} is not a follow command')
+    return decode_event(ev)  # the contract's codec (ladrc_contract.events)
 
 
 # ---- what-if parameters -----------------------------------------------------------------------
@@ -946,8 +929,6 @@ def write_whatif(bag: Path, table: Mapping[str, Any], plot: Mapping[str, np.ndar
     under a temporary name and renamed when complete; an existing ``out_dir`` is refused
     (:class:`ReplayError`).
     """
-    import json
-
     from .report import strict_json
 
     out = Path(out_dir)

@@ -15,16 +15,18 @@ from pathlib import Path
 import sys
 from typing import Any, Callable
 
+from ladrc_contract.codes import FollowState, LimitFlag
+from ladrc_contract.topics import SEQ_FIELD
 import numpy as np
 import yaml
 
-from ..bags.bag import SEQ_FIELD, Bag, BagError, count_lost, open_bag, read_text_topic
+from ..bags.bag import Bag, BagError, count_lost, open_bag, read_text_topic
 from .envelope import Envelope
 from .outdir import building
 from .quantiles import Quantiles
 
-STATE_NAMES = ['IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT']
-LIMIT_VELOCITY, LIMIT_ACCELERATION = 1, 2
+STATE_NAMES = [s.name for s in FollowState]
+LIMIT_VELOCITY, LIMIT_ACCELERATION = int(LimitFlag.VELOCITY), int(LimitFlag.ACCELERATION)
 
 
 def stderr_progress(label: str) -> Callable[[int, int], None]:

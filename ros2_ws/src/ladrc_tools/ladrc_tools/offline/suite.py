@@ -38,13 +38,14 @@ from pathlib import Path
 import time
 from typing import Any, Callable, Iterable, Mapping
 
+from ladrc_contract.codes import FollowState
 import numpy as np
 
 CHATTER_HZ = 20.0       # high-pass corner of the chatter measure (above every sheet motion)
 CHATTER_SKIP_S = 0.3    # skip the transient of the last target change
 AMP_SKIP_S = 1.0        # amplitude ratio: skip the sine's start-up transient
 QUICK_DURATION_S = 3.0  # --quick: every scenario cut to this (events after it dropped)
-STATE_NAMES = ('IDLE', 'LOCKING', 'PREINTERPOLATE', 'PID', 'LADRC', 'FAULT')
+STATE_NAMES = tuple(s.name for s in FollowState)
 EXPECTED_FAULT = frozenset({'faults'})  # scenarios that inject faults on purpose
 
 

@@ -1,4 +1,4 @@
-"""The follow states, the transition table, the tick input and the status codes.
+"""The follow states, the transition table, and the codes the machine uses as plain ints.
 
 The transition table is the machine's whole graph (notes §3.5 ``Follow_OnStep``, completed where
 the seed is a fragment: docs/follow-state-machine.md): :meth:`FollowController.enter` refuses
@@ -7,20 +7,10 @@ any (from, to) pair that is not in it, and :func:`diagram` draws the docs' diagr
 
 from __future__ import annotations
 
-from enum import IntEnum
-from typing import NamedTuple
+from ladrc_contract.codes import FollowState, GapStatus, LimitFlag
+from ladrc_contract.tick import TickInput
 
-
-class FollowState(IntEnum):
-    """Follow states; the values are ``ladrc_msgs/FollowStatus`` ``STATE_*``."""
-
-    IDLE = 0
-    LOCKING = 1
-    PREINTERPOLATE = 2
-    PID = 3
-    LADRC = 4
-    FAULT = 5
-
+__all__ = ['FollowState', 'TickInput']
 
 IDLE, LOCKING, PREINTERPOLATE, PID, LADRC, FAULT = (int(s) for s in FollowState)
 FOLLOWING = (LOCKING, PREINTERPOLATE, PID, LADRC)
@@ -61,37 +51,10 @@ def diagram() -> str:
     return '\n'.join(lines) + '\n'
 
 
-class TickInput(NamedTuple):
-    """Inputs of one controller tick (the sim runner's ``TickInput`` plus ``gap_status``).
-
-    ``gap_status`` is ``CapacitiveHeight.status`` (``GAP_STATUS_*``); it is the last field
-    with a default, so an 8-field tuple (the sim runner's) is accepted too: a status of 0
-    with ``gap_valid`` false means "not reported" and the cause is inferred from the reading
-    (at or below ``collision_gap_mm``: collision; otherwise out of range / miss-panel).
-    """
-
-    t_s: float
-    gap_mm: float
-    gap_valid: bool
-    gap_stamp_s: float
-    encoder_mm: float
-    encoder_stamp_s: float
-    drive_enabled: bool
-    drive_fault: bool
-    gap_status: int = 0
-
-
-# ladrc_msgs/CapacitiveHeight STATUS_*
-GAP_STATUS_OK = 0
-GAP_STATUS_OUT_OF_RANGE = 1
-GAP_STATUS_COLLISION = 2
-GAP_STATUS_FAULT = 3
-
-# ladrc_msgs/FollowStatus LIMIT_* bits
-LIMIT_VELOCITY = 1
-LIMIT_ACCELERATION = 2
-LIMIT_ESO_STATE = 4
-LIMIT_SOFT_Z = 8
+# the contract's codes (ladrc_contract.codes) as plain ints, for the tick path
+GAP_STATUS_OK, GAP_STATUS_OUT_OF_RANGE, GAP_STATUS_COLLISION, GAP_STATUS_FAULT = (
+    int(c) for c in GapStatus)
+LIMIT_VELOCITY, LIMIT_ACCELERATION, LIMIT_ESO_STATE, LIMIT_SOFT_Z = (int(c) for c in LimitFlag)
 
 # internals() keys = these ladrc_msgs/FollowStatus fields
 INTERNALS_KEYS = (
