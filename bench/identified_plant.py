@@ -27,8 +27,8 @@ import time
 ROOT = Path(__file__).resolve().parents[1]
 for _pkg in ('ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
     sys.path.insert(0, str(ROOT / 'ros2_ws/src' / _pkg))
+from ladrc_follow.analysis.loop import AxisModel, analyse_params  # noqa: E402
 from ladrc_follow.control.follow import FollowController  # noqa: E402
-from ladrc_follow.control.loop import AxisModel, analyse_params  # noqa: E402
 from ladrc_follow.control.params import ControllerParams, params_from_dict  # noqa: E402
 from ladrc_sim.headless.runner import run, summary  # noqa: E402
 from ladrc_sim.headless.scenario import load_scenario  # noqa: E402
@@ -49,13 +49,13 @@ def with_b0(params: ControllerParams, b0: float) -> ControllerParams:
     """Return ``params`` with ``eso.b0`` replaced (through the validated dict route)."""
     d = dataclasses.asdict(params)
     d['eso']['b0'] = b0
-    return params_from_dict(d, gate=False)
+    return params_from_dict(d)
 
 
 def sim(name: str, mode: str, params: ControllerParams, **axis) -> dict:
     sc = load_scenario(name)
     sc = dataclasses.replace(sc, axis=dataclasses.replace(sc.axis, **axis))
-    ctrl = FollowController(params, mode=mode, gate=False)
+    ctrl = FollowController(params, mode=mode)
     res = dict(summary(run(sc, ctrl, record_internals=True)))
     res['fault'] = ctrl.fault_reason or ''
     return res
@@ -174,7 +174,7 @@ def main() -> None:
             'initial_gap_mm': 1.0, 'axis': {'model': 'identified'},
             'sensor': {'noise_std_mm': 0.005, 'quant_mm': 0.001},
             'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
-        r = run(sc, FollowController(base, mode='ladrc', gate=False), record_internals=True)
+        r = run(sc, FollowController(base, mode='ladrc'), record_internals=True)
         tail = r.command_mm_s[-int(10.0 / r.h_s):]
         out['long_s'] = args.long_s
         out['long_error_rms_mm'] = round(float(r.metrics.error_rms_mm), 5)

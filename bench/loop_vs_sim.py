@@ -6,7 +6,7 @@ For the shipped LADRC (order 1, Euler), an order-2 ZOH observer with the Kalman 
 the PID: a 5 um sheet sine at 12 frequencies from 0.5 to 60 Hz in the headless runner (the
 full FollowController in its LADRC or PID state; no noise, no quantization), projected over the
 last whole periods, against the analysed sheet-to-nozzle response
-(``ladrc_follow.control.loop``). Plots both (magnitude and phase) and prints the largest
+(``ladrc_follow.analysis.loop``). Plots both (magnitude and phase) and prints the largest
 deviations; last line JSON with ``max_db`` and ``max_deg`` per loop.
 """
 
@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 for pkg in ('ladrc_follow', 'ladrc_sim'):
     sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / pkg))
 
+from ladrc_follow.analysis.loop import AxisModel, analyse_params, frequency_grid  # noqa: E402
 from ladrc_follow.control.follow import FollowController  # noqa: E402
-from ladrc_follow.control.loop import AxisModel, analyse_params, frequency_grid  # noqa: E402
 from ladrc_follow.control.params import (  # noqa: E402
     ControllerParams,
     ESOParams,
@@ -58,7 +58,7 @@ def simulated(params: ControllerParams, mode: str, f: float) -> complex:
         'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.005, 'freq_hz': f,
                                 't_start_s': t_on}]},
         'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
-    res = run(sc, FollowController(params, mode=mode, gate=False))
+    res = run(sc, FollowController(params, mode=mode))
     n = int(round(periods / f / H))
     sl = slice(res.t_s.size - n, res.t_s.size)
     basis = np.exp(-2j * np.pi * f * (res.t_s[sl] - t_on))

@@ -10,6 +10,7 @@ import io
 import json
 import math
 
+from ladrc_follow.analysis.gate import check_gate
 from ladrc_follow.control.params import load_params
 from ladrc_tools.bags.bag import BagWriter, write_run_bag
 from ladrc_tools.cli import main
@@ -140,7 +141,7 @@ def test_cli_writes_report_plot_and_a_gated_parameter_file(identified):
         assert j['residual_rms_mm'] < 0.5e-3  # the encoder's quantization, 1 µm/√12
         assert {p.name for p in out.iterdir()} == {'identification.md', 'fit.png',
                                                     'params.yaml', 'identification.json'}
-        p = load_params(out / 'params.yaml', gate=True)
+        p = check_gate(load_params(out / 'params.yaml'))
         assert p.stability.axis_dead_time_ticks == d
         assert p.stability.axis_b0 == pytest.approx(b0, rel=1e-3)
         assert p.stability.axis_t1_ms == pytest.approx(t1 * 1e3, rel=0.01)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from ladrc_follow.control.loop import (
+from ladrc_follow.analysis.loop import (
     AxisModel,
     StateSpace,
     analyse,
@@ -129,7 +129,7 @@ def test_analysis_agrees_with_the_simulated_sheet_sine(mode, variant):
             'sheet': {'profiles': [{'kind': 'sine', 'amp_mm': 0.005, 'freq_hz': f,
                                     't_start_s': t_on}]},
             'timeline': [{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}]})
-        res = run(sc, FollowController(p, mode=mode, gate=False), record_internals=True)
+        res = run(sc, FollowController(p, mode=mode), record_internals=True)
         state = np.asarray(res.internals['state'])
         n_win = int(round(periods / f / H))
         sl = slice(res.t_s.size - n_win, res.t_s.size)
@@ -195,7 +195,7 @@ def test_observer_estimates_the_disturbance_with_its_bandwidth(order, disc, k):
     """ESO alone: ẑ/f = ω0^(n+1)/(s + ω0)^(n+1) at ω0 h << 1, so −3 dB at k·ω0; poles at ω0."""
     from dataclasses import replace
 
-    from ladrc_follow.control.loop import analyse_observer
+    from ladrc_follow.analysis.loop import analyse_observer
     from ladrc_follow.control.params import ESOParams
 
     w0 = 60.0
@@ -230,23 +230,26 @@ def test_axis_model_is_the_simulators_discretization():
 def test_stability_gate_rejects_with_the_numbers_and_the_cli_too(tmp_path, capsys):
     """A valid set whose loop falls short is rejected where sets are loaded, with the numbers.
 
-    Replay does not gate (it reproduces what ran); ``stability.gate: false`` switches it off;
-    ``ladrc analyze`` takes any set and says why the gate refuses it.
+    ``params_from_dict`` validates, the gate is the loader's (``check_gate``); replay does not
+    gate (it reproduces what ran); ``stability.gate: false`` switches it off; ``ladrc analyze``
+    takes any set and says why the gate refuses it.
     """
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.params import ParameterError, dump_params, params_from_dict
     from ladrc_tools.cli import main as ladrc
 
-    assert params_from_dict({}).stability.gate  # the shipped set passes
+    assert check_gate(params_from_dict({})).stability.gate  # the shipped set passes
     with pytest.raises(ParameterError) as exc:
-        params_from_dict({'law': {'kp': 60.0}})
+        check_gate(params_from_dict({'law': {'kp': 60.0}}))
     text = ' '.join(exc.value.reasons)
     assert 'stability gate: the ladrc loop has a phase margin of 19.9° < 30°' in text
     assert 'sensitivity peak Ms of 3.17 > 2.5' in text
     with pytest.raises(ParameterError, match='unstable'):
-        params_from_dict({'stability': {'axis_dead_time_ticks': 30}})
-    assert params_from_dict({'law': {'kp': 60.0}}, gate=False).law.kp == 60.0
-    assert params_from_dict({'law': {'kp': 60.0}, 'stability': {'gate': False}}).law.kp == 60.0
-    bad = params_from_dict({'law': {'kp': 60.0}}, gate=False)
+        check_gate(params_from_dict({'stability': {'axis_dead_time_ticks': 30}}))
+    assert params_from_dict({'law': {'kp': 60.0}}).law.kp == 60.0  # valid, not gated
+    assert check_gate(params_from_dict({'law': {'kp': 60.0},
+                                        'stability': {'gate': False}})).law.kp == 60.0
+    bad = params_from_dict({'law': {'kp': 60.0}})
     path = tmp_path / 'p.yaml'
     path.write_text(dump_params(bad))
     for args in (['params', '--check', str(path)], ['simulate', 'step', '--params', str(path)]):
@@ -263,25 +266,27 @@ def test_stability_gate_rejects_with_the_numbers_and_the_cli_too(tmp_path, capsy
     assert 'stability gate' in (tmp_path / 'a' / 'analysis.md').read_text()
 
 
-def test_sets_built_in_code_pass_the_gate_too():
-    """The controller itself gates: the headless runner as a library, set_params at run time."""
+def test_the_controller_runs_what_it_is_given_and_the_gate_is_the_callers():
+    """The control core does not gate (the analysis stays off the tick path); its callers do.
+
+    The headless runner as a library and replay run a set as it is; the node gates at start-up
+    and on a change (tests/ros), the CLI where it loads a file (above).
+    """
     from dataclasses import replace
 
+    from ladrc_follow.analysis.gate import check_gate, stability_reasons
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import ControllerParams, LawParams, ParameterError
-    from ladrc_sim.headless.runner import run
 
     bad = replace(ControllerParams(), law=LawParams(kp=60.0))
     with pytest.raises(ParameterError, match='phase margin of 19.9° < 30°'):
-        run('step', FollowController(bad))
+        check_gate(bad)
+    assert any('sensitivity peak Ms of 3.17 > 2.5' in r for r in stability_reasons(bad))
+    assert FollowController(bad).params.law.kp == 60.0
     ctl = FollowController()
-    with pytest.raises(ParameterError, match='sensitivity peak Ms of 3.17 > 2.5'):
-        ctl.set_params(bad)
-    assert ctl.params.law.kp != 60.0  # the running set stays
-    # replay and the suite's study variants reproduce sets as they were
-    assert FollowController(bad, gate=False).params.law.kp == 60.0
-    off = replace(bad, stability=replace(bad.stability, gate=False))
-    assert FollowController(off).params.law.kp == 60.0
+    ctl.set_params(bad)  # queued: the caller decided
+    with pytest.raises(ParameterError):
+        ctl.set_params(replace(bad, law=LawParams(kp=-1.0)))  # an invalid set never runs
 
 
 def test_tune_on_a_tiny_grid_writes_a_set_that_loads_and_beats_the_worst(tmp_path, capsys):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
+from ladrc_follow.analysis.loop import td_ss
 from ladrc_follow.control.follow import FollowController
-from ladrc_follow.control.loop import td_ss
 from ladrc_follow.control.params import ControllerParams, params_from_dict
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
@@ -119,6 +119,7 @@ def test_fal_eso_equals_the_leso_with_its_linear_zone_gains_in_closed_loop():
 
 
 def test_fal_settings_that_cannot_run_are_rejected_with_the_reason():
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.ladrc import LADRC
     from ladrc_follow.control.params import ParameterError
 
@@ -132,7 +133,7 @@ def test_fal_settings_that_cannot_run_are_rejected_with_the_reason():
                                                'betas': [180.0, 10800.0 * 0.05 ** 0.5]}})])
     # the shipped betas with a 50 µm linear zone: β2·δ^(α−1) = 48 300/s², refused by the gate
     with pytest.raises(ParameterError, match='stability gate'):
-        params_from_dict({'eso': {'nonlinear': 'disturbance'}})
+        check_gate(params_from_dict({'eso': {'nonlinear': 'disturbance'}}))
 
 
 def _gated(kalman: dict, timeline: list) -> tuple:

@@ -27,7 +27,7 @@ NAMES = ('identified_plant', 'identified_step')
 def _with_b0(b0):
     d = dataclasses.asdict(ControllerParams())
     d['eso']['b0'] = b0
-    return params_from_dict(d, gate=False)
+    return params_from_dict(d)
 
 
 def test_library_scenarios_use_the_identified_model_and_the_batch_refuses_them():
@@ -112,7 +112,7 @@ def test_a_matched_b0_runs_the_gain_1_step_as_the_nominal_one():
     sc = load_scenario('identified_step')
     ref = run(sc, FollowController(ControllerParams(), mode='ladrc'), record_internals=True)
     hot = dataclasses.replace(sc, axis=dataclasses.replace(sc.axis, identified_gain=1.0))
-    ctrl = FollowController(_with_b0(16.75), mode='ladrc', gate=False)
+    ctrl = FollowController(_with_b0(16.75), mode='ladrc')
     res = run(hot, ctrl, record_internals=True)
     assert ctrl.fault_reason in (None, '') and res.metrics.collisions == 0
     assert res.metrics.settling_time_s == pytest.approx(ref.metrics.settling_time_s, rel=0.25)

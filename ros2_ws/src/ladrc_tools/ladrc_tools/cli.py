@@ -81,6 +81,7 @@ def make_controller(kind: str, params: Any) -> Any:
 
 
 def _run_simulate(a: argparse.Namespace) -> int:
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.params import (
         ControllerParams,
         ParameterError,
@@ -95,7 +96,7 @@ def _run_simulate(a: argparse.Namespace) -> int:
     except (ScenarioError, OSError) as exc:
         raise CliError(str(exc).splitlines()[0]) from None
     try:
-        params = load_params(a.params) if a.params else ControllerParams()
+        params = check_gate(load_params(a.params)) if a.params else ControllerParams()
     except ParameterError as exc:
         raise CliError(' '.join(str(exc).split())) from None
     if a.output and Path(a.output).exists():
@@ -154,6 +155,7 @@ def _add_suite(p: argparse.ArgumentParser) -> None:
 
 
 def _run_suite(a: argparse.Namespace) -> int:
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.params import ParameterError, load_params
 
     from .offline.suite import SuiteError, markdown_table, summary, timed_suite, write_outputs
@@ -162,7 +164,7 @@ def _run_suite(a: argparse.Namespace) -> int:
         return [x.strip() for x in v.split(',') if x.strip()] if v else None
 
     try:
-        base = load_params(a.params) if a.params else None
+        base = check_gate(load_params(a.params)) if a.params else None
     except (ParameterError, OSError) as exc:
         raise CliError(' '.join(str(exc).split())) from None
     if a.jobs < 1:
@@ -317,14 +319,14 @@ def _add_analyze(p: argparse.ArgumentParser) -> None:
 
 
 def _run_analyze(a: argparse.Namespace) -> int:
-    from ladrc_follow.control.loop import AxisModel
+    from ladrc_follow.analysis.loop import AxisModel
     from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
 
     from .offline.analyze import write_analysis
     from .offline.report import strict_json
 
     try:  # not gated: analyze is how one sees why a set fails the gate
-        params = load_params(a.params, gate=False) if a.params else ControllerParams()
+        params = load_params(a.params) if a.params else ControllerParams()
     except ParameterError as exc:
         raise CliError(' '.join(str(exc).split())) from None
     if not (0.0 < a.b0 <= 1e5 and 0.0 < a.t1_ms <= 1e4 and 0 <= a.dead_time_ticks <= 1000
@@ -360,6 +362,7 @@ def _add_tune(p: argparse.ArgumentParser) -> None:
 
 
 def _run_tune(a: argparse.Namespace) -> int:
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
     from ladrc_sim.headless.batch import BatchUnsupported, batchable_scenarios, check_batchable
     from ladrc_sim.headless.scenario import ScenarioError, load_scenario
@@ -374,7 +377,7 @@ def _run_tune(a: argparse.Namespace) -> int:
         w0s, kps, b0s = (parse_range(a.w0, 'w0'), parse_range(a.kp, 'kp'),
                          parse_range(a.b0, 'b0'))
         td_rs = parse_range(a.td_r, 'td-r') if a.td_r else None
-        base = load_params(a.params) if a.params else ControllerParams()
+        base = check_gate(load_params(a.params)) if a.params else ControllerParams()
         names = a.scenarios.split(',') if a.scenarios else batchable_scenarios()
         for name in names:
             check_batchable(load_scenario(name))
@@ -694,11 +697,12 @@ def _add_params(p: argparse.ArgumentParser) -> None:
 
 
 def _run_params(a: argparse.Namespace) -> int:
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.params import ParameterError, load_params, parameter_file
 
     if a.check:
         try:
-            load_params(a.check)
+            check_gate(load_params(a.check))
         except ParameterError as exc:
             raise CliError(' | '.join(exc.reasons)) from None
         print(f'{a.check}: valid')

@@ -60,8 +60,14 @@ _STRUCTURAL = ('order', 'discretization', 'compensator', 'kalman', 'use_td', 'ex
                'ext_rate_limit', 'nonlinear', 'fal_table')
 
 
-def _constants(p: ControllerParams) -> dict:
-    """Per-tick constants of one parameter set, derived once."""
+def tick_constants(p: ControllerParams) -> dict:
+    """Return the per-tick constants of one parameter set, derived once (read by name).
+
+    ``ta``/``tb``: the compound TD's two stages (k1, k2, r, alpha); ``g1..g3``: the observer
+    gains; ``c1``, ``c2``: the compensator weights; ``kp``, ``kd``, ``w_rate``, ``w_acc``: the
+    law; ``q``, ``r``, ``p0``, ``kgate``, ``kconfirm``: the Kalman filter. The linear analysis
+    (``ladrc_follow.analysis.loop``) builds its probe controllers from the same constants.
+    """
     e = p.eso
     gains = eso_gains(p)
     kp, kd = law_gains(p)
@@ -116,7 +122,7 @@ class LADRC:
                  _consts=None, _ops=None, _n=None) -> None:
         if _consts is None:
             self.params = check(params if params is not None else ControllerParams())
-            consts = _constants(self.params)
+            consts = tick_constants(self.params)
             self.ops = SCALAR
             self.n = None
         else:
@@ -172,7 +178,7 @@ class LADRC:
         params = [check(p) for p in params]
         if not params:
             raise ValueError('LADRC.batch needs at least one parameter set')
-        rows = [_constants(p) for p in params]
+        rows = [tick_constants(p) for p in params]
         first = rows[0]
         for i, row in enumerate(rows[1:], start=1):
             for key in _STRUCTURAL:

@@ -39,7 +39,7 @@ from .interp import InterpParams
 from .kalman import KalmanParams
 from .pid import PIDParams
 from .schema import entries, field_problems, param
-from .stability import StabilityParams, stability_reasons
+from .stability import StabilityParams
 from .td import TDA_FIRMWARE, TDB_FIRMWARE, TDParams
 
 __all__ = [
@@ -321,13 +321,13 @@ def _unwrap_ros(d: dict, node_name: str | None) -> dict:
 
 
 def params_from_dict(d: dict | None, node_name: str | None = None,
-                     validate_set: bool = True, gate: bool = True) -> ControllerParams:
+                     validate_set: bool = True) -> ControllerParams:
     """Build :class:`ControllerParams` from a (partial) nested, dotted or ROS-layout dict.
 
-    Missing values keep their defaults. Raises :class:`ParameterError` listing
-    unknown keys, wrong types and (with ``validate_set``) every validation reason, then
-    (with ``gate``, and ``stability.gate`` on) why the set's loops fail the stability gate
-    (:mod:`.stability`). Replay passes ``gate=False``: it reproduces recorded sets.
+    Missing values keep their defaults. Raises :class:`ParameterError` listing unknown keys,
+    wrong types and (with ``validate_set``) every validation reason. It does not gate: a
+    caller that loads a set to run it calls the stability gate itself
+    (``ladrc_follow.analysis.gate.check_gate``).
     """
     if d is None:
         d = {}
@@ -340,23 +340,7 @@ def params_from_dict(d: dict | None, node_name: str | None = None,
         raise ParameterError(errors)
     if validate_set:
         check(p)
-        if gate:
-            check_gate(p)
     return p
-
-
-def check_gate(p: ControllerParams) -> None:
-    """Raise :class:`ParameterError` with the numbers if ``p`` fails the stability gate.
-
-    No-op when ``stability.gate`` is off. A set the analysis cannot take fails too.
-    """
-    try:
-        reasons = stability_reasons(p)
-    except Exception as exc:  # noqa: BLE001 - a set the analysis cannot take
-        reasons = [f'stability gate: the loop could not be analysed: '
-                   f'{type(exc).__name__}: {exc}']
-    if reasons:
-        raise ParameterError(reasons)
 
 
 def params_to_dict(p: ControllerParams) -> dict:
@@ -421,12 +405,8 @@ def parameter_file(p: ControllerParams | None = None) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def load_params(path: str | Path, node_name: str | None = None,
-                gate: bool = True) -> ControllerParams:
-    """Load and validate a parameter file (plain or ROS 2 layout).
-
-    ``gate``: the stability gate, as :func:`params_from_dict`.
-    """
+def load_params(path: str | Path, node_name: str | None = None) -> ControllerParams:
+    """Load and validate a parameter file (plain or ROS 2 layout), without the gate."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -436,7 +416,7 @@ def load_params(path: str | Path, node_name: str | None = None,
         d = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ParameterError([f'{path} is not valid YAML: {exc}']) from exc
-    return params_from_dict(d, node_name=node_name, gate=gate)
+    return params_from_dict(d, node_name=node_name)
 
 
 # ---------------------------------------------------------------------------

@@ -80,6 +80,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 import yaml
 
+from ..analysis.gate import check_gate
 from ..control.cap_table import RawToGap, TableError, TableLimits, load_table
 from ..control.follow import FollowController, FollowState, PreparedSet, TickInput
 from ..control.params import (
@@ -226,7 +227,9 @@ class FollowNode(LoopNode):
         self.cap_table: RawToGap | None = None
         self._last_sample: tuple[float, float, bool, int, bool] | None = None
         try:
-            self.params = self._params_from_ros({})
+            # the start-up set passes the stability gate here, in this process (the loop is
+            # not running yet); a change at run time in the gate's process (gate_process.py)
+            self.params = check_gate(self._params_from_ros({}))
             self.cap_table = self._load_table(self.params)
         except ParameterError as exc:
             reasons += exc.reasons
@@ -234,9 +237,9 @@ class FollowNode(LoopNode):
             raise ParameterError(reasons)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        # every set reaching the controller passed the stability gate in params_from_dict (start
-        # up and the parameter callback); gate=False keeps the analysis off the tick path
-        self.controller = FollowController(self.params, gate=False)
+        # every set reaching the controller passed the stability gate (start-up above, a change
+        # in _on_set_parameters); the controller does not gate (the analysis stays off the loop)
+        self.controller = FollowController(self.params)
         # Sets accepted on the housekeeping thread, checked and built there; the loop applies
         # them at its next tick. The node's lock: the loop holds it for a tick, a follow
         # command takes it between two ticks, and a set takes it to queue itself ("not
@@ -387,11 +390,11 @@ class FollowNode(LoopNode):
                 self._parameter_overrides[e.name] = Parameter(e.name, value=value)
         self.declare_parameter(e.name, ros_value(e, e.value), descriptor(e))
 
-    def _params_from_ros(self, changes: dict[str, Any], gate: bool = True) -> ControllerParams:
+    def _params_from_ros(self, changes: dict[str, Any]) -> ControllerParams:
         values = {name: self.get_parameter(name).value for name in self._entries}
         values.update(changes)
         return params_from_dict({k: (tuple(v) if isinstance(v, (list, tuple, array)) else v)
-                                 for k, v in values.items()}, gate=gate)
+                                 for k, v in values.items()})
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Check a set and build it for the loop (the housekeeping thread, never the loop)."""
@@ -403,7 +406,7 @@ class FollowNode(LoopNode):
                 return SetParametersResult(successful=False, reason=f'unknown parameter {p.name}')
             changes[p.name] = p.value
         try:
-            candidate = self._params_from_ros(changes, gate=False)
+            candidate = self._params_from_ros(changes)
             # the stability gate in its own process: in this one it held the loop
             # (node/gate_process.py)
             reasons = self.gate.reasons(candidate) if candidate.stability.gate else []

@@ -24,7 +24,8 @@ import signal
 
 from ladrc_contract.realtime import schedule_this_thread
 
-from ..control.params import ControllerParams, ParameterError, check_gate
+from ..analysis.gate import check_gate
+from ..control.params import ControllerParams, ParameterError
 
 GATE_TIMEOUT_S = 10.0
 """The longest a set's verdict may take (a loaded machine; the gate itself takes ~25 ms)."""

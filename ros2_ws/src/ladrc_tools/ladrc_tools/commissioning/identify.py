@@ -618,7 +618,8 @@ def suggest(axis: AxisFit, sensor_lag_s: float = 0.0) -> Suggestion:
 
     Raises :class:`IdentifyError` when no set on the search passes the stability gate.
     """
-    from ladrc_follow.control.loop import AxisModel, analyse_params, frequency_grid
+    from ladrc_follow.analysis.gate import check_gate
+    from ladrc_follow.analysis.loop import AxisModel, analyse_params, frequency_grid
     from ladrc_follow.control.params import ControllerParams, ParameterError, params_from_dict
 
     # the controller's tick, not the bag's sample period: the gate counts dead time in it
@@ -662,7 +663,7 @@ def suggest(axis: AxisFit, sensor_lag_s: float = 0.0) -> Suggestion:
              'law': {'gains': 'bandwidth', 'wc_rad_s': round(wc, 3)},
              'stability': stab}
         try:
-            p = params_from_dict(d, gate=True)
+            p = check_gate(params_from_dict(d))
         except ParameterError as exc:
             last = exc.reasons
             p = None

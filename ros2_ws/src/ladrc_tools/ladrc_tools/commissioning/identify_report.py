@@ -300,6 +300,7 @@ def params_yaml(ident: Identification) -> str:
 
 def write_outputs(ident: Identification, out: Path) -> dict[str, Any]:
     """Write the output folder (never overwritten); return the summary."""
+    from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.params import ParameterError, load_params
 
     from ..offline.outdir import building
@@ -310,7 +311,7 @@ def write_outputs(ident: Identification, out: Path) -> dict[str, Any]:
     with building(out) as tmp:
         (tmp / 'params.yaml').write_text(params_yaml(ident), encoding='utf-8')
         try:  # the file as a user loads it: the stability gate included
-            load_params(tmp / 'params.yaml', gate=True)
+            check_gate(load_params(tmp / 'params.yaml'))
         except ParameterError as exc:
             raise IdentifyError('the suggested parameter file does not load: '
                                 + ' | '.join(exc.reasons)) from None

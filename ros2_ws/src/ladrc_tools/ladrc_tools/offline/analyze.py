@@ -1,6 +1,6 @@
 """``ladrc analyze``: the linear follow loop of a parameter set, in the frequency domain.
 
-The loop is :mod:`ladrc_follow.control.loop`'s: the controller's own tick, linearized, around
+The loop is :mod:`ladrc_follow.analysis.loop`'s: the controller's own tick, linearized, around
 the axis model ``b0/(s(T1 s + 1))`` with dead time and sensor lag, at the controller's period.
 Writes ``bode.png`` (loop gain L, S and T, sheet-to-gap, target-to-gap through the TD, and
 the LADRC's observer: disturbance estimate / disturbance), ``analysis.md`` and
@@ -15,7 +15,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ladrc_follow.control.loop import (
+from ladrc_follow.analysis.loop import (
     AxisModel,
     LoopAnalysis,
     ObserverAnalysis,
@@ -129,7 +129,7 @@ def markdown(fig: dict[str, Any], params_source: str, mode: str, axis: AxisModel
 def write_analysis(params: ControllerParams, params_source: str, mode: str | None,
                    axis: AxisModel, out_dir: Path) -> tuple[Path, dict[str, Any]]:
     """Analyse and write ``out_dir``; return it and the figures."""
-    from ladrc_follow.control.stability import stability_reasons
+    from ladrc_follow.analysis.gate import stability_reasons
 
     mode = mode or params.follow.controller
     an = analyse_params(params, axis, mode)

@@ -10,7 +10,7 @@ standard deviation)::
 The simulator runs it as ``axis.model: identified`` (``ladrc_sim.models.axis``): the command,
 clipped to ±v_max, times ``identified_gain``, drives G; the position is G's output. Here the same
 plant, ZOH-discretized at the tick exactly as the simulator does, is written in the layout of
-``ladrc_follow.control.loop.axis_ss`` (inputs command and sheet; outputs reading, encoder,
+``ladrc_follow.analysis.loop.axis_ss`` (inputs command and sheet; outputs reading, encoder,
 nozzle) so that ``loop.analyse`` — the machinery of ``ladrc analyze`` — closes the shipped
 controller around it. Pure module (numpy, scipy; no rclpy). docs/identified-plant.md.
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ladrc_follow.control.loop import StateSpace, analyse, controller_ss
+from ladrc_follow.analysis.loop import StateSpace, analyse, controller_ss
 import numpy as np
 from scipy import signal
 

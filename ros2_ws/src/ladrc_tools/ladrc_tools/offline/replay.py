@@ -206,7 +206,7 @@ def _state_name(state: int) -> str:
 def _parse_params(text: str, what: str) -> ControllerParams:
     try:
         data = yaml.safe_load(text)
-        return params_from_dict(data, gate=False)  # reproduce what ran
+        return params_from_dict(data)  # reproduce what ran
     except (yaml.YAMLError, ParameterError) as exc:
         raise BagError(f'the parameter set of {what} is unusable: '
                        f'{" ".join(str(exc).split())}') from None
@@ -451,7 +451,7 @@ def _with(base: ControllerParams, overrides: Mapping[str, Any], what: str) -> Co
                           '`ros2 param list`, e.g. law.kp, eso.w0_rad_s)')
     flat.update(overrides)
     try:
-        return params_from_dict(flat, gate=False)  # offline, open loop: nothing goes live
+        return params_from_dict(flat)  # offline, open loop: nothing goes live
     except ParameterError as exc:
         raise ReplayError(f'{what}: {"; ".join(exc.reasons)}') from None
 
@@ -473,7 +473,7 @@ def whatif_params(rec: Recording, params_file: str | Path | None = None,
         except yaml.YAMLError:
             raise ReplayError(f'--params {p}: not valid YAML') from None
         try:
-            base = params_from_dict(data, gate=False)
+            base = params_from_dict(data)
         except ParameterError as exc:
             raise ReplayError(f'--params {p}: {"; ".join(exc.reasons)}') from None
     out = _with(base, dict(overrides or {}), '--set') if overrides else base
@@ -526,7 +526,7 @@ class Replay:
     def batches(self, progress: Callable[[int, int], None] | None = None
                 ) -> Iterator[tuple[RecordedBatch, ReplayBatch]]:
         """Step a fresh controller over the recording; yield each batch and what it sent."""
-        ctl = FollowController(self.params, mode=self.mode, gate=False)  # as recorded
+        ctl = FollowController(self.params, mode=self.mode)  # as recorded
         events = self.rec.events
         n_ev = len(events)
         j = 0
@@ -587,7 +587,7 @@ class Replay:
                    recorded_set: ControllerParams) -> ControllerParams:
         """Apply a recorded PARAMETERS event; return the recorded set now in force."""
         try:
-            new_set = params_from_dict(yaml.safe_load(ev.text), gate=False)
+            new_set = params_from_dict(yaml.safe_load(ev.text))
         except (yaml.YAMLError, ParameterError) as exc:
             self.notes.append(f'tick {ev.tick}: recorded parameter set unusable '
                               f'({" ".join(str(exc).split())[:120]}); not applied')

@@ -57,7 +57,7 @@ def _params(d: dict) -> Any:
 
     d = {**d, 'edge': {**SEED_EDGE, **d.get('edge', {})}}
     # an experiment harness: the notes' settings run as they are (docs/loop-analysis.md)
-    return params_from_dict(d, gate=False)
+    return params_from_dict(d)
 
 
 def _run(scenario: Any, params: dict, *, internals: bool = True) -> tuple[Any, Any]:
@@ -67,7 +67,7 @@ def _run(scenario: Any, params: dict, *, internals: bool = True) -> tuple[Any, A
 
     sc = (scenario_from_dict(scenario) if isinstance(scenario, dict)
           else load_scenario(scenario) if isinstance(scenario, str) else scenario)
-    c = FollowController(_params(params), gate=False)
+    c = FollowController(_params(params))
     return run(sc, c, record_internals=internals), c
 
 

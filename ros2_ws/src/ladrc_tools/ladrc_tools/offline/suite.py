@@ -263,7 +263,7 @@ def variant_params(base: Any, variant: Variant) -> Any:
     d['follow']['controller'] = variant.mode
     # an experiment harness: the seeds' variants run as they are, even where they would not
     # pass the stability gate of a live set (ladrc_comp: docs/loop-analysis.md)
-    return params_from_dict(d, gate=False)
+    return params_from_dict(d)
 
 
 def quick_scenario(scenario: Any, duration_s: float = QUICK_DURATION_S) -> Any:
@@ -292,8 +292,8 @@ def _run_one(job: tuple[str, str, dict, bool]) -> SuiteRow:
         # the notes' edge experiments ran the seed firmware, which has no edge guard: run them
         # as the seed did (docs/safety.md has what the guard does in them)
         params_dict = {**params_dict, 'edge': {**params_dict['edge'], 'enabled': False}}
-    params = params_from_dict(params_dict, gate=False)  # as variant_params
-    controller = FollowController(params, mode=VARIANTS[variant].mode, gate=False)
+    params = params_from_dict(params_dict)  # as variant_params
+    controller = FollowController(params, mode=VARIANTS[variant].mode)
     result = run(sc, controller, record_internals=True)
     return measure(result, sc.name, variant, controller.fault_reason)
 

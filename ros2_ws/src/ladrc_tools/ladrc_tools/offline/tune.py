@@ -3,7 +3,7 @@
 The grid spans the observer bandwidth ω0 (``eso.gains: bandwidth``), the gain ``law.kp``,
 ``eso.b0`` and the second TD's speed factor ``td_b.r_per_s`` around a base set. Every grid
 set is validated and put through the stability gate
-(:mod:`ladrc_follow.control.stability`); the sets that pass run together, as rows of one batch
+(:mod:`ladrc_follow.analysis.gate`); the sets that pass run together, as rows of one batch
 (:mod:`ladrc_sim.headless.batch`), through each chosen scenario. The scenarios fall in three
 classes, and each class gives its own scores (averaged over its scenarios, from 0.2 s on):
 
@@ -30,9 +30,9 @@ import math
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from ladrc_follow.analysis.gate import stability_reasons
 from ladrc_follow.control.ladrc import LADRC
 from ladrc_follow.control.params import ControllerParams, ParameterError, check, dump_params
-from ladrc_follow.control.stability import stability_reasons
 from ladrc_sim.headless.batch import run_batch
 from ladrc_sim.headless.scenario import load_scenario
 import numpy as np

@@ -38,7 +38,7 @@ from ..interp import Interpolator, InterpParams
 from ..kalman import kalman_gated_step
 from ..ladrc import LADRC
 from ..ops import SCALAR
-from ..params import ControllerParams, check, check_gate
+from ..params import ControllerParams, check
 from ..pid import FollowPID
 from ..target_wave import TargetWave
 from . import input_gate as gate
@@ -83,15 +83,13 @@ class PreparedSet(NamedTuple):
 
 
 def _build(params: ControllerParams | None, follow: FollowParams | None,
-           mode: str | None = None, gate_on: bool = True) -> PreparedSet:
+           mode: str | None = None) -> PreparedSet:
     params = params if params is not None else ControllerParams()
     if follow is not None:
         params = replace(params, follow=follow)
     if mode is not None:
         params = replace(params, follow=replace(params.follow, controller=mode))
     check(params)  # the whole set (ParameterError is a ValueError)
-    if gate_on:
-        check_gate(params)  # its loops against the configured axis (stability.*)
     return PreparedSet(params, params.follow, LADRC(params), FollowPID(params.pid, params.h_s),
                        Interpolator(params.interp, params.h_s))
 
@@ -105,14 +103,13 @@ class FollowController:
     bit for bit. ``follow`` overrides ``params.follow``; ``mode`` ('ladrc' | 'pid') overrides
     ``follow.controller`` (also for later :meth:`set_params`).
 
-    Every set, at construction and in :meth:`set_params`, passes the stability gate
-    (``stability.*``, :mod:`..stability`) unless ``stability.gate`` is off in it, or ``gate``
-    is False: replay and the suite's study variants reproduce sets as they were, gate or not.
+    Every set, at construction and in :meth:`set_params`, is validated as a whole; the
+    stability gate (``ladrc_follow.analysis.gate``) is its caller's: the node gates what it
+    runs, replay and the suite's study variants reproduce sets as they were.
     """
 
     def __init__(self, params: ControllerParams | None = None,
-                 follow: FollowParams | None = None, *, mode: str | None = None,
-                 gate: bool = True) -> None:
+                 follow: FollowParams | None = None, *, mode: str | None = None) -> None:
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
                        'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'sink_hold': 0,
                        'verify': 0, 'edge_gain': 0}
@@ -122,8 +119,7 @@ class FollowController:
         self._pending: list[tuple[str, dict]] = []
         self._pending_build: PreparedSet | None = None
         self._mode = mode  # 'ladrc' | 'pid' overrides follow.controller (CLI --controller)
-        self._gate = gate
-        self._install(_build(params, follow, mode, gate))
+        self._install(_build(params, follow, mode))
         self._state = IDLE
         self._tick = -1
         self._u = 0.0            # last applied command (mm/s)
@@ -211,7 +207,7 @@ class FollowController:
         Touches no state of the running controller, so a node does it off its loop thread:
         the build takes milliseconds, a tick has 0.5 ms (the follow node's parameter thread).
         """
-        return _build(params, follow, self._mode, self._gate)
+        return _build(params, follow, self._mode)
 
     def set_prepared(self, prepared: PreparedSet) -> None:
         """Queue a set built by :meth:`prepare`: it takes effect at the next tick, bumplessly."""

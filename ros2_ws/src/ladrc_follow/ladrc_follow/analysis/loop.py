@@ -30,7 +30,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .eso import (
+from ..control.eso import (
     eso1_euler_step,
     eso1_fal_step,
     eso1_zoh_step,
@@ -39,10 +39,10 @@ from .eso import (
     eso2_zoh_step,
     fal_alphas,
 )
-from .ladrc import LADRC, _constants
-from .ops import SCALAR
-from .params import ControllerParams
-from .pid import FollowPID
+from ..control.ladrc import LADRC, tick_constants
+from ..control.ops import SCALAR
+from ..control.params import ControllerParams
+from ..control.pid import FollowPID
 
 EPS = 1e-6
 """Probe size: far inside every limit (a_max·h is 2.5 mm/s per tick at the defaults)."""
@@ -174,7 +174,7 @@ def controller_ss(params: ControllerParams, mode: str | None = None) -> StateSpa
     n_td = 5  # the compound TD's state (a1, a2, b1, b2, v_prev), ladrc.py ``_track``
     if mode == 'ladrc':
         # the set was validated where it was loaded: build without checking it again
-        c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+        c = LADRC(params, _consts=tick_constants(params), _ops=SCALAR)
         names = ['z1', 'z2'] + (['z3'] if c.order == 2 else []) + ['u', 'fused_gap_mm']
         p_ss = params.kalman.p0_mm2
         if c.kalman_enabled:  # the steady-state covariance: the gain the filter settles to
@@ -425,7 +425,7 @@ def observer_ss(params: ControllerParams) -> StateSpace:
     The plant is the ESO's model with u = 0, exact under a hold: y' = f (order 1) or
     y'' = f (order 2); the observer is the LADRC's step function with its gains.
     """
-    c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+    c = LADRC(params, _consts=tick_constants(params), _ops=SCALAR)
     n, h = c.order, params.h_s
     if c._g is not None:  # the fal-ESO: probed inside its linear zone (eso.fal_delta_mm)
         step_fn = eso1_fal_step if n == 1 else eso2_fal_step
@@ -462,13 +462,13 @@ def observer_ss(params: ControllerParams) -> StateSpace:
 def analyse_observer(params: ControllerParams, f_hz: Sequence[float] | None = None
                      ) -> ObserverAnalysis:
     """Disturbance-estimation response and error dynamics of the set's ESO."""
-    from .eso import LinearESO
+    from ..control.eso import LinearESO
 
     h = params.h_s
     f = frequency_grid(h) if f_hz is None else np.asarray(f_hz, dtype=float)
     resp = observer_ss(params).response(f)[:, 0, 0]
     e = params.eso
-    c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+    c = LADRC(params, _consts=tick_constants(params), _ops=SCALAR)
     gains = c._gains[:e.order + 1]
     if e.nonlinear != 'off':  # the fal-ESO's linear zone: gains β_i·δ^(α_i − 1)
         gains = tuple(g * e.fal_delta_mm ** (a - 1.0) for g, a in
@@ -489,7 +489,7 @@ def td_ss(params: ControllerParams) -> StateSpace:
 
     Linear by construction (notes §2.1); probing gives its discrete form exactly as it runs.
     """
-    c = LADRC(params, _consts=_constants(params), _ops=SCALAR)
+    c = LADRC(params, _consts=tick_constants(params), _ops=SCALAR)
 
     def get() -> np.ndarray:
         return np.array([float(v) for v in c._td])
