@@ -126,6 +126,11 @@ class CdrPacker:
                 pos += size
         return b''.join(parts)
 
+    def defaults(self) -> list[Any]:
+        """Return zero values of the leaf fields, each of the right Python type."""
+        zero = {'string': '', 'bool': False, 'float32': 0.0, 'float64': 0.0}
+        return [zero.get(kind, 0) for _, kind in self.fields]
+
     def unpack(self, data: bytes) -> list[Any]:
         """Return the leaf values of CDR ``data`` (little endian, as :meth:`pack` writes it).
 

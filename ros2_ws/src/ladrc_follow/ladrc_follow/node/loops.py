@@ -1,6 +1,6 @@
 """The follow node's loop thread: when it ticks (``loop``, docs/follow-node.md "The loop").
 
-The thread takes the sensor samples straight from the readers (:meth:`FollowNode.take_samples`,
+The thread takes the sensor samples straight from the readers (:mod:`.samples`,
 :mod:`ladrc_contract.loop_io`) and spins no executor; the housekeeping thread serves the rest.
 
 * ``deadline``: sleep until the next 0.5 ms deadline, take what arrived, tick, advance the
@@ -28,9 +28,10 @@ import threading
 import time
 from typing import Any, Protocol
 
-from ladrc_contract.loop_io import LoopReader, SampleWait
+from ladrc_contract.loop_io import SampleWait
 
 from ..control.follow import FollowController, FollowState
+from .samples import SampleInputs
 
 
 class FollowNode(Protocol):
@@ -40,18 +41,11 @@ class FollowNode(Protocol):
     period_ns: int
     sync_wait_ns: int
     context: Any
-    gap_reader: LoopReader
-    fb_reader: LoopReader
-    step_reader: LoopReader | None
-    new_gap: bool
-    new_feedback: bool
+    samples: SampleInputs
     controller: FollowController
     node_params: Any
     _lock: threading.Lock
-    _step: tuple | None
-    _step_wall_ns: int
 
-    def take_samples(self) -> None: ...  # noqa: D102
     def tick(self) -> None: ...  # noqa: D102
     def tick_sync(self) -> None: ...  # noqa: D102
     def tick_step(self) -> None: ...  # noqa: D102
@@ -86,7 +80,7 @@ def run_deadline(node: FollowNode, running: list[bool]) -> None:
         if remaining > 0:
             time.sleep(remaining * 1e-9)
             continue
-        _guarded(node, node.take_samples)
+        _guarded(node, node.samples.take)
         _guarded(node, node.tick)
         next_ns += period
         if mono() - next_ns > period:
@@ -97,20 +91,21 @@ def run_sync(node: FollowNode, running: list[bool]) -> None:
     """Tick when both inputs have a new sample; at the latest one period + sync_wait_s on."""
     limit = node.period_ns + node.sync_wait_ns
     mono = time.monotonic_ns
-    wait_gap = SampleWait(node.context, (node.gap_reader,))
-    wait_fb = SampleWait(node.context, (node.fb_reader,))
+    s = node.samples
+    wait_gap = SampleWait(node.context, (s.gap_reader,))
+    wait_fb = SampleWait(node.context, (s.fb_reader,))
     last = mono()
     feedback_last = True  # which input completed the previous pair
     while running[0]:
-        had_gap, had_fb = node.new_gap, node.new_feedback
-        _guarded(node, node.take_samples)
-        if node.new_gap and node.new_feedback:
+        had_gap, had_fb = s.new_gap, s.new_feedback
+        _guarded(node, s.take)
+        if s.new_gap and s.new_feedback:
             if had_gap != had_fb:  # the one missing before this take completed the pair
                 feedback_last = had_gap
         else:
             remaining = last + limit - mono()
             if remaining > 0:
-                missing_fb = not node.new_feedback and (node.new_gap or feedback_last)
+                missing_fb = not s.new_feedback and (s.new_gap or feedback_last)
                 (wait_fb if missing_fb else wait_gap).wait(remaining)
                 continue
         last = mono()
@@ -124,17 +119,18 @@ def run_lockstep(node: FollowNode, running: list[bool]) -> None:
     a FAULT (the core's stale limit cannot see it, its clock being the sim's).
     """
     timeout_ns = int(node.node_params.lockstep_timeout_s * 1e9)
-    wait_step = SampleWait(node.context, (node.step_reader,))
-    wait_samples = SampleWait(node.context, (node.gap_reader, node.fb_reader))
+    s = node.samples
+    wait_step = SampleWait(node.context, (s.step_reader,))
+    wait_samples = SampleWait(node.context, (s.gap_reader, s.fb_reader))
     while running[0]:
-        _guarded(node, node.take_samples)
+        _guarded(node, s.take)
         if node.step_ready():
             _guarded(node, node.tick_step)
             continue
         # the step names its samples; they are published before it, but on other topics
-        (wait_step if node._step is None else wait_samples).wait(LOCKSTEP_POLL_NS)
-        if (node._step_wall_ns and node._step is None
-                and time.monotonic_ns() - node._step_wall_ns > timeout_ns
+        (wait_step if s.step is None else wait_samples).wait(LOCKSTEP_POLL_NS)
+        if (s.step_wall_ns and s.step is None
+                and time.monotonic_ns() - s.step_wall_ns > timeout_ns
                 and node.controller.state != FollowState.FAULT):
             with node._lock:
                 node.controller.fail(f'lock step: no step from the sim for '

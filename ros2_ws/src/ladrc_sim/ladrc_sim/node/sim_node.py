@@ -99,8 +99,7 @@ class _Outgoing:
 
     def __init__(self, typename: str, frame_id: str) -> None:
         self.packer = CdrPacker(typename)
-        zero = {'string': '', 'bool': False, 'float32': 0.0, 'float64': 0.0}
-        self.values = [zero.get(kind, 0) for _, kind in self.packer.fields]
+        self.values = self.packer.defaults()
         self.values[self.packer.index['header.frame_id']] = frame_id
         self.index = self.packer.index
 

@@ -41,7 +41,7 @@ from typing import Any, NamedTuple
 from ladrc_contract import qos
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
-from ladrc_follow.node.follow_node import sim_time_s
+from ladrc_follow.node.samples import sim_time_s
 from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import Calibrate
 import numpy as np
