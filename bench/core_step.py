@@ -5,8 +5,9 @@ and the Kalman filter switched on. Batch path: one ``step`` of N parameter sets 
 arrays; throughput as multiples of real time at h = 0.5 ms, counting all N controllers
 (N·h / wall time per batch step). Last line: one JSON object.
 
-The tick is the plain composition of the step functions (``LADRC.step1`` / ``step2``); the
-1-minute load average is printed with the figures (the development VM is shared).
+The tick is the plain composition of the step functions (``LADRC.step_order1`` /
+``step_order2``); the 1-minute load average is printed with the figures (the development VM is
+shared).
 
 Run: ``scripts/in-env python bench/core_step.py`` (or any Python with numpy + scipy + yaml).
 """

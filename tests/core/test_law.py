@@ -2,7 +2,13 @@
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from ladrc_follow.control.law import apply_limits, form_weights, gains_from_bandwidth, law1, law2
+from ladrc_follow.control.law import (
+    apply_limits,
+    form_weights,
+    gains_from_bandwidth,
+    law_order1,
+    law_order2,
+)
 from ladrc_follow.control.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
@@ -37,7 +43,7 @@ def seed_law_int(track, diff, x1, x2, kp_int, b0_int, v_max, acc, n_ctrl):
 def float_law(track_mm, diff_mm_s, z1, z2, kp, b0, v_max, du_max, u_prev):
     w_td, w_rate, _ = form_weights(3, 1)
     assert w_td
-    p, ff, u0, u = law1(SCALAR, track_mm, diff_mm_s, z1, z2, kp, b0, w_rate)
+    p, ff, u0, u = law_order1(SCALAR, track_mm, diff_mm_s, z1, z2, kp, b0, w_rate)
     return apply_limits(SCALAR, u, u_prev, v_max, du_max)[0], (p, ff, u0, u)
 
 
@@ -85,14 +91,14 @@ def test_law2_forms_by_hand():
     r, dr, ddr, z1, z2, z3 = 1.0, 0.5, -2.0, 0.9, 0.3, 4.0
     kp, kd, b0 = 100.0, 20.0, 50.0
     _, w1, a1 = form_weights(1, 2)
-    _, _, _, u0, u = law2(SCALAR, r, dr, ddr, z1, z2, z3, kp, kd, b0, w1, a1)
+    _, _, _, u0, u = law_order2(SCALAR, r, dr, ddr, z1, z2, z3, kp, kd, b0, w1, a1)
     assert u0 == pytest.approx(100 * 0.1 + 20 * (0.5 - 0.3))
     _, w3, a3 = form_weights(3, 2)
-    p, d, ff, u0, u = law2(SCALAR, r, dr, ddr, z1, z2, z3, kp, kd, b0, w3, a3)
+    p, d, ff, u0, u = law_order2(SCALAR, r, dr, ddr, z1, z2, z3, kp, kd, b0, w3, a3)
     assert (p, d, ff) == pytest.approx((10.0, 4.0, -2.0))
     assert u == pytest.approx((12.0 - 4.0) / 50.0)
     _, w2, a2 = form_weights(2, 2)
-    _, _, _, u0, _ = law2(SCALAR, r, dr, ddr, z1, z2, z3, kp, kd, b0, w2, a2)
+    _, _, _, u0, _ = law_order2(SCALAR, r, dr, ddr, z1, z2, z3, kp, kd, b0, w2, a2)
     assert u0 == pytest.approx(100 * 0.1 - 20 * 0.3)
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 from bisect import bisect_right
 from dataclasses import dataclass, field
 import math
+from math import isfinite
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -332,10 +333,10 @@ class RawToGap:
 
     def convert(self, raw_hz: float, valid: bool, status: int) -> tuple[float, bool, int]:
         """Return ``(gap_mm, valid, status)`` of one sample (module docstring, "Range")."""
-        if not raw_hz - raw_hz == 0.0:  # NaN or inf
+        if not isfinite(raw_hz):  # NaN or inf
             return math.nan, False, status if status else STATUS_FAULT
         g = self.gap_mm(raw_hz)
-        if g - g == 0.0:
+        if isfinite(g):
             return g, bool(valid) and status == STATUS_OK, status
         self.out_of_range += 1
         near = (raw_hz < self._x[0]) == self._near_is_low

@@ -41,6 +41,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 import math
+from math import isnan
 
 import numpy as np
 
@@ -383,14 +384,14 @@ class EdgeGuard:
             # the reading's noise: the second difference of white noise has 6 x its variance;
             # the axis' and the sheet's curvature add < 0.1 µm per tick at 2 kHz
             d2 = gap_mm - 2.0 * self._r1 + self._r2
-            if d2 == d2:
+            if not isnan(d2):
                 # a running mean until noise_tau_s worth of samples, then a low-pass
                 self._d2_n += 1
                 c = max(1.0 / self._d2_n, self._c_noise)
                 ms = self._d2_ms
-                self._d2_ms = d2 * d2 if not ms == ms else ms + c * (d2 * d2 - ms)
+                self._d2_ms = d2 * d2 if isnan(ms) else ms + c * (d2 * d2 - ms)
             self._r2, self._r1 = self._r1, gap_mm
-        if not dz == dz:
+        if isnan(dz):
             # first tick
             return self._verify_tick(enc_mm, gap_mm, fresh) if self.verifying else OK
         # the apparent surface (encoder − gap) moves by dz − dr
@@ -415,14 +416,14 @@ class EdgeGuard:
             k = self.travel.update(enc_mm, gap_mm)
             if k > p.gain_max:
                 return self._edge_travel(k)
-            if k == k:
+            if not isnan(k):
                 self._verified(s)
             return OK
         if self.probing:
             # after a fall, the closing in (downward travel) is what is judged
             k = self.travel.update(enc_mm, gap_mm)
             self._probe_ticks += 1
-            if k == k and dz < 0.0:
+            if not isnan(k) and dz < 0.0:
                 if k > p.gain_max:
                     return self._edge_travel(k)
                 self.probing = False  # a sheet under the nozzle: full speed again
@@ -432,10 +433,10 @@ class EdgeGuard:
             return OK
         ver = self.verified_mm
         if p.verify_sink <= 0.0:
-            if not ver == ver or s > ver:
+            if isnan(ver) or s > ver:
                 self.verified_mm = s  # no verification: the level is taken as it comes
             return OK
-        if not ver == ver:
+        if isnan(ver):
             # followed without a judged gain (an approach too slow to judge): verify first
             if self._doubt_mm == math.inf:
                 self._start_verify()
@@ -507,9 +508,9 @@ class EdgeGuard:
         t = self._t
         if fresh:
             self._fit.append((t, enc_mm, gap_mm))
-        if not self._z_start == self._z_start:
+        if isnan(self._z_start):
             self._z_start, self._r_start = enc_mm, gap_mm  # a verification's first tick
-        skipped = self._t_last == self._t_last and t - self._t_last > 1.5 * self._h
+        skipped = not isnan(self._t_last) and t - self._t_last > 1.5 * self._h
         self._t_last = t
         self._ticks += 1
         p = self.params

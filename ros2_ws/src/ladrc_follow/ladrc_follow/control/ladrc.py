@@ -25,8 +25,8 @@ numeric parameters are numpy arrays (one row per parameter set) and the same
 arithmetic runs on arrays through the ``ARRAY`` ops.
 
 The tick is plain Python composing the step functions of :mod:`td`, :mod:`eso`,
-:mod:`kalman` and :mod:`law` (one implementation of each algorithm): :meth:`LADRC.step1` for
-order 1 and :meth:`LADRC.step2` for order 2, bound as ``step`` at construction. Numbers are
+:mod:`kalman` and :mod:`law` (one implementation of each algorithm): :meth:`LADRC.step_order1` for
+order 1 and :meth:`LADRC.step_order2` for order 2, bound as ``step`` at construction. Numbers are
 read once per tick into locals; nothing is generated or rewritten at run time.
 """
 
@@ -49,7 +49,7 @@ from .eso import (
     fal_alphas,
 )
 from .kalman import kalman_gated_step
-from .law import apply_limits, form_weights, law1, law2
+from .law import apply_limits, form_weights, law_order1, law_order2
 from .nonlinear import LookupTable, fal
 from .ops import ARRAY, SCALAR
 from .params import ControllerParams, check, eso_gains, law_gains
@@ -149,7 +149,7 @@ class LADRC:
         self._ext = (c['ext_limit_v'] if c['ext_limit'] else None,
                      c['ext_rate_limit_v'] if c['ext_rate_limit'] else None)
         self._g = self._fal_corrections(c)
-        self.step = self.step1 if self.order == 1 else self.step2
+        self.step = self.step_order1 if self.order == 1 else self.step_order2
         self.reset(0.0, 0.0, 0.0)
 
     def _fal_corrections(self, c: dict):
@@ -243,11 +243,11 @@ class LADRC:
         ``encoder_mm`` is the axis position (+ up); only its increment is used, by the
         Kalman filter (ignored when the filter is off; may be None then). ``fresh`` false:
         ``gap_mm`` is not a new sample (the follow controller's encoder prediction), so the
-        Kalman filter only predicts. The instance binds this name to :meth:`step1` or
-        :meth:`step2` at construction.
+        Kalman filter only predicts. The instance binds this name to :meth:`step_order1` or
+        :meth:`step_order2` at construction.
         """
-        return self.step1(gap_mm, encoder_mm, target_mm, fresh) if self.order == 1 else \
-            self.step2(gap_mm, encoder_mm, target_mm, fresh)
+        return self.step_order1(gap_mm, encoder_mm, target_mm, fresh) if self.order == 1 else \
+            self.step_order2(gap_mm, encoder_mm, target_mm, fresh)
 
     def _measure(self, gap_mm, encoder_mm, fresh=True):
         """Gap the observer sees: the reading, or its Kalman fusion with Δenc (notes §4)."""
@@ -284,7 +284,7 @@ class LADRC:
         self.u = u
         return u
 
-    def step1(self, gap_mm, encoder_mm, target_mm, fresh=True):
+    def step_order1(self, gap_mm, encoder_mm, target_mm, fresh=True):
         """Order-1 tick (seed ``CONTROLLER_ORDER 1``): Kalman, ESO, TD, law, limits."""
         ops, h, b0 = self.ops, self._h, self._b0
         g1, g2, _ = self._gains
@@ -311,13 +311,13 @@ class LADRC:
         if not self.use_td:  # form 2: the raw target, no reference derivative
             r, dr = target_mm, 0.0
         # notes §3.1: u = (kp(r − z1) + w·ṙ − z2) / b0
-        self.p_term, self.ff_term, self.u0, u = law1(ops, r, dr, z1, z2, kp, b0, w_rate)
+        self.p_term, self.ff_term, self.u0, u = law_order1(ops, r, dr, z1, z2, kp, b0, w_rate)
         self.u_unlimited = u
         self.disturbance_term = -(z2 / b0)
         return self._limit(u, u_prev)
 
-    def step2(self, gap_mm, encoder_mm, target_mm, fresh=True):
-        """Order-2 tick: as :meth:`step1` with z = (gap, gap rate, disturbance), r̈ = Δṙ/h."""
+    def step_order2(self, gap_mm, encoder_mm, target_mm, fresh=True):
+        """Order-2 tick: as :meth:`step_order1` with z = (gap, gap rate, disturbance), r̈ = Δṙ/h."""
         ops, h, b0 = self.ops, self._h, self._b0
         g1, g2, g3 = self._gains
         u_prev = self.u
@@ -344,7 +344,7 @@ class LADRC:
         if not self.use_td:
             r, dr, ddr = target_mm, 0.0, 0.0
         # notes §3.1: u = (kp(r − z1) + kd(w·ṙ − z2) + w·r̈ − z3) / b0
-        self.p_term, self.d_term, self.ff_term, self.u0, u = law2(
+        self.p_term, self.d_term, self.ff_term, self.u0, u = law_order2(
             ops, r, dr, ddr, z1, z2, z3, kp, kd, b0, w_rate, w_acc)
         self.u_unlimited = u
         self.disturbance_term = -(z3 / b0)

@@ -68,7 +68,7 @@ def gains_from_bandwidth(order: int, wc_rad_s: float) -> tuple[float, float]:
     raise ValueError(f'order must be 1 or 2 (plant model order), got {order!r}')
 
 
-def law1(ops, r, dr, z1, z2, kp, b0, w_rate):
+def law_order1(ops, r, dr, z1, z2, kp, b0, w_rate):
     """Order-1 LADRC law; returns ``(p_term, ff_term, u0, u)``.
 
     u0 = kp(r − z1) + w_rate·ṙ; u = (u0 − z2)/b0 (notes §3.1, ``UpdateLADRC``).
@@ -80,7 +80,7 @@ def law1(ops, r, dr, z1, z2, kp, b0, w_rate):
     return p, ff, u0, (u0 - z2) / b0
 
 
-def law2(ops, r, dr, ddr, z1, z2, z3, kp, kd, b0, w_rate, w_acc):
+def law_order2(ops, r, dr, ddr, z1, z2, z3, kp, kd, b0, w_rate, w_acc):
     """Order-2 LADRC law; returns ``(p_term, d_term, ff_term, u0, u)``.
 
     u0 = kp(r − z1) + kd(w_rate·ṙ − z2) + w_acc·r̈; u = (u0 − z3)/b0 (notes §3.1).

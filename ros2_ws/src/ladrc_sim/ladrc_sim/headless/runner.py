@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+from math import isnan
 from pathlib import Path
 import time
 from typing import Any, Mapping, Protocol, runtime_checkable
@@ -331,7 +332,7 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
             # Axis.step, first-order model without dead time (models/axis.py).
             if drive_ok:
                 u = ax_umax if u > ax_umax else (-ax_umax if u < -ax_umax else
-                                                 (u if u == u else 0.0))
+                                                 (u if not isnan(u) else 0.0))
                 v1 = ax_a * v + ax_kv * u
                 dv = v1 - v
                 if -ax_dvm <= dv <= ax_dvm:

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 import math
+from math import isnan
 from typing import Any
 
 import numpy as np
@@ -171,13 +172,13 @@ class Axis:
         else:
             u = cmd_mm_s
         if self._identified:
-            return self._step_identified(u if u == u else 0.0, enabled and not fault)
+            return self._step_identified(u if not isnan(u) else 0.0, enabled and not fault)
         v = self.velocity_mm_s
         dv_max = self._dv_max
         if enabled and not fault:
             u_max = self._u_max
             # NaN fails every comparison: treat it as no command rather than poison the state.
-            u = u_max if u > u_max else (-u_max if u < -u_max else (u if u == u else 0.0))
+            u = u_max if u > u_max else (-u_max if u < -u_max else (u if not isnan(u) else 0.0))
             v1 = self._a * v + self._kv * u
             dv = v1 - v
             if -dv_max <= dv <= dv_max:
