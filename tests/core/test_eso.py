@@ -2,9 +2,8 @@
 
 from math import comb, factorial
 
+from ladrc_follow.analysis.observers import LinearESO
 from ladrc_follow.control.eso import (
-    LinearESO,
-    NonlinearESO,
     bandwidth_gains,
     compensate1,
     compensate2,
@@ -14,14 +13,12 @@ from ladrc_follow.control.eso import (
     eso2_euler_step,
     eso2_zoh_step,
     euler_is_stable,
-    euler_stability_limit,
-    seed_gains_order1,
-    static_error,
     zoh_gains,
 )
 from ladrc_follow.control.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
+from reference_forms import NonlinearESO, euler_stability_limit, seed_gains_order1, static_error
 from scipy.linalg import expm
 
 

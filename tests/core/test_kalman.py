@@ -2,15 +2,11 @@
 
 import math
 
-from ladrc_follow.control.kalman import (
-    HeightKalman,
-    KalmanParams,
-    kalman_step,
-    steady_state_gain,
-)
+from ladrc_follow.control.kalman import KalmanParams
 from ladrc_follow.control.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
+from reference_forms import HeightKalman, kalman_step, steady_state_gain
 from scipy.linalg import solve_discrete_are
 
 

@@ -6,16 +6,13 @@ from ladrc_follow.control.ops import ARRAY, SCALAR
 from ladrc_follow.control.td import (
     TDA_FIRMWARE,
     TDB_FIRMWARE,
-    CompoundTD,
     TDParams,
-    compound_td_step,
     td_discrete_matrix,
-    td_params_from_wn_xi,
-    td_step,
     td_step_firmware,
 )
 import numpy as np
 import pytest
+from reference_forms import CompoundTD, compound_td_step, td_params_from_wn_xi, td_step
 
 STEPS = [td_step, td_step_firmware]
 

@@ -462,7 +462,7 @@ def observer_ss(params: ControllerParams) -> StateSpace:
 def analyse_observer(params: ControllerParams, f_hz: Sequence[float] | None = None
                      ) -> ObserverAnalysis:
     """Disturbance-estimation response and error dynamics of the set's ESO."""
-    from ..control.eso import LinearESO
+    from .observers import LinearESO
 
     h = params.h_s
     f = frequency_grid(h) if f_hz is None else np.asarray(f_hz, dtype=float)

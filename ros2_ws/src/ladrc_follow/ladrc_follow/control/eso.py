@@ -33,46 +33,22 @@ from typing import Sequence
 
 import numpy as np
 
-from .nonlinear import fal
 from .ops import ARRAY, SCALAR
 
 
 # ---------------------------------------------------------------- gains and analysis
 def bandwidth_gains(n: int, w0_rad_s: float) -> tuple[float, ...]:
     """Observer gains with all n+1 poles at −ω0: β_j = C(n+1, j)·ω0^j, j = 1..n+1 (eq. 18)."""
-    _check_order(n)
+    check_order(n)
     if not (w0_rad_s > 0.0):
         raise ValueError(f'ESO bandwidth w0_rad_s = {w0_rad_s}: must be > 0 rad/s')
     return tuple(float(comb(n + 1, j)) * w0_rad_s ** j for j in range(1, n + 2))
 
 
-def seed_gains_order1(w0_rad_s: float) -> tuple[float, float]:
-    """Return the firmware's order-1 gains (3ω, 3ω²): (270, 24300) at ω = 90, (180, 10800) at 60.
-
-    These are the first two terms of the order-2 formula (``GetLADRCParam``), not the
-    order-1 bandwidth gains (2ω, ω²). The error poles are the roots of
-    s² + 3ω s + 3ω²: s = ω(−1.5 ± j·0.866), |s| = √3·ω, damping √3/2 = 0.866. At ω = 90
-    they sit at |s| = 155.9 rad/s (24.8 Hz), not at the notes' "14.6 Hz" label
-    (≈ ω/2π = 14.3 Hz); at ω = 60, |s| = 103.9 rad/s (16.5 Hz), not "9.8 Hz".
-    """
-    if not (w0_rad_s > 0.0):
-        raise ValueError(f'w0_rad_s = {w0_rad_s}: must be > 0 rad/s')
-    return 3.0 * w0_rad_s, 3.0 * w0_rad_s ** 2
-
-
-def static_error(n: int, w0_rad_s: float, h0: float) -> tuple[float, ...]:
-    """Return the static errors (e1 … e_{n+1}) under a constant disturbance rate h0 (eq. 19).
-
-    e_{i+1} = C(n+1, i)·h0 / ω0^(n+1−i), i = 0..n, for bandwidth gains (e = x − z).
-    """
-    _check_order(n)
-    return tuple(comb(n + 1, i) * h0 / w0_rad_s ** (n + 1 - i) for i in range(n + 1))
-
-
 def continuous_matrices(n: int, betas: Sequence[float], b0: float):
     """Paper eq. 3/7/8 matrices ``(A, B, C, L, A_e)`` of an order-n LESO (n+1 states)."""
-    _check_order(n)
-    betas = _check_betas(n, betas)
+    check_order(n)
+    betas = check_betas(n, betas)
     m = n + 1
     a = np.eye(m, k=1)
     b = np.zeros(m)
@@ -85,28 +61,10 @@ def continuous_matrices(n: int, betas: Sequence[float], b0: float):
 
 def euler_is_stable(n: int, betas: Sequence[float], h_s: float) -> bool:
     """Return True when the explicit-Euler error dynamics I + h·A_e have spectral radius < 1."""
-    _check_order(n)
+    check_order(n)
     *_, a_e = continuous_matrices(n, betas, 1.0)
     m = np.eye(n + 1) + h_s * a_e
     return bool(max(abs(np.linalg.eigvals(m))) < 1.0)
-
-
-def euler_stability_limit(n: int, betas: Sequence[float] | None = None) -> float:
-    """Largest step for which the explicit-Euler ESO is stable.
-
-    Without ``betas`` (bandwidth gains): the bound on ω0·h, which is exactly 2 for every n
-    (all poles at −ω0 map to 1 − ω0 h). With ``betas``: the bound on h in seconds,
-    min over the continuous poles λ of −2·Re λ / |λ|² (|1 + hλ| < 1).
-    """
-    _check_order(n)
-    if betas is None:
-        return 2.0
-    betas = _check_betas(n, betas)
-    lam = np.roots([1.0, *betas])
-    if np.any(lam.real >= 0.0):
-        raise ValueError(f'ESO betas {betas} give a continuous observer that is not stable'
-                         ' (a pole with Re >= 0); no step size helps')
-    return float(np.min(-2.0 * lam.real / np.abs(lam) ** 2))
 
 
 def zoh_matrices(n: int, b0: float, h_s: float):
@@ -115,7 +73,7 @@ def zoh_matrices(n: int, b0: float, h_s: float):
     A is nilpotent (a shift), so e^(Ah) = Σ_k (Ah)^k/k! ends at k = n and
     Γ = Σ_k A^k h^(k+1)/(k+1)! · B, both exactly.
     """
-    _check_order(n)
+    check_order(n)
     m = n + 1
     a = np.eye(m, k=1)
     b = np.zeros(m)
@@ -137,7 +95,7 @@ def zoh_gains_from_poles(n: int, poles_z: Sequence[complex], h_s: float) -> tupl
     1/(j−i)! independent of h, so the solve is well conditioned at any h; then
     L_i = L̃_i / h^(i−1).
     """
-    _check_order(n)
+    check_order(n)
     m = n + 1
     if len(poles_z) != m:
         raise ValueError(f'need {m} discrete poles for an order-{n} ESO, got {len(poles_z)}')
@@ -168,7 +126,7 @@ def zoh_gains(n: int, w0_rad_s: float, h_s: float) -> tuple[float, ...]:
 
 def zoh_gains_from_betas(n: int, betas: Sequence[float], h_s: float) -> tuple[float, ...]:
     """ZOH gains for explicit continuous betas: each continuous pole λ maps to e^(λh)."""
-    betas = _check_betas(n, betas)
+    betas = check_betas(n, betas)
     lam = np.roots([1.0, *betas])
     return zoh_gains_from_poles(n, np.exp(lam * h_s), h_s)
 
@@ -290,131 +248,14 @@ def compensate2(ops, z1, z2, z3, e1, b1, b2):
     return z1 + e1, z2 + b1 * e1, z3 + b2 * e1
 
 
-# ---------------------------------------------------------------- general classes
-class LinearESO:
-    """Order-n linear ESO in the paper's matrix form (numpy; for analysis and offline use).
-
-    Give either ``w0_rad_s`` (bandwidth gains) or explicit ``betas``. ``discretization``
-    is ``'euler'`` (the firmware's) or ``'zoh'`` (current estimator, gains from the
-    continuous poles mapped by e^(λh)). With ``compensate=True`` :meth:`update` returns
-    z' = z + D, D_i = β_{i−1}·e1 (β0 = 1, paper eq. 22).
-
-    :meth:`update` returns the estimate at the sample time of ``y``: for Euler that is
-    the state before the step (predicted last tick, plus D if compensating), after
-    which the state advances to the prediction z(k+1), kept in :attr:`z`; for ZOH it is
-    z(k|k) (plus D from the a-posteriori e1). Compensation of the ZOH form uses the
-    continuous betas, an approximation valid for ω0·h ≪ 1.
-    """
-
-    def __init__(self, n: int, b0: float, h_s: float, w0_rad_s: float | None = None,
-                 betas: Sequence[float] | None = None, discretization: str = 'euler',
-                 compensate: bool = False):
-        _check_order(n)
-        if (w0_rad_s is None) == (betas is None):
-            raise ValueError('LinearESO: give exactly one of w0_rad_s (bandwidth tuning) or'
-                             ' betas (explicit gains)')
-        if not (h_s > 0.0):
-            raise ValueError(f'LinearESO: h_s = {h_s} must be > 0 (seconds)')
-        if discretization not in ('euler', 'zoh'):
-            raise ValueError(f"LinearESO: discretization = {discretization!r}; use 'euler' or"
-                             " 'zoh'")
-        self.n, self.b0, self.h_s = n, float(b0), float(h_s)
-        self.betas = bandwidth_gains(n, w0_rad_s) if betas is None else _check_betas(n, betas)
-        self.discretization = discretization
-        self.compensate = compensate
-        self.A, self.B, self.C, self.L, self.A_e = continuous_matrices(n, self.betas, b0)
-        if discretization == 'zoh':
-            self.phi, self.gamma = zoh_matrices(n, b0, h_s)
-            if w0_rad_s is not None:
-                self.l_c = np.array(zoh_gains(n, w0_rad_s, h_s))
-            else:
-                self.l_c = np.array(zoh_gains_from_betas(n, self.betas, h_s))
-        self._d = np.array((1.0, *self.betas[:-1]))     # compensator weights, β0 = 1
-        self.z = np.zeros(n + 1)
-
-    def discrete_error_matrix(self) -> np.ndarray:
-        """Error-dynamics matrix: I + h·A_e (euler) or (I − L_c C)·Φ (zoh)."""
-        if self.discretization == 'euler':
-            return np.eye(self.n + 1) + self.h_s * self.A_e
-        return (np.eye(self.n + 1) - np.outer(self.l_c, self.C)) @ self.phi
-
-    def reset(self, y0: float, rest: Sequence[float] | None = None) -> None:
-        """Set z1 = y0 and the higher states to ``rest`` (zeros by default, as ``ESOInit``)."""
-        self.z = np.zeros(self.n + 1)
-        self.z[0] = y0
-        if rest is not None:
-            self.z[1:] = rest
-
-    def update(self, y: float, u: float) -> np.ndarray:
-        """Feed one sample (y, u); return the estimate at this sample time (see class doc)."""
-        if self.discretization == 'euler':
-            e1 = y - self.z[0]
-            out = self.z + self._d * e1 if self.compensate else self.z.copy()
-            self.z = self.z + self.h_s * (self.A @ self.z + self.B * u + self.L * e1)
-            return out
-        pred = self.phi @ self.z + self.gamma * u
-        self.z = pred + self.l_c * (y - pred[0])
-        if self.compensate:
-            return self.z + self._d * (y - self.z[0])
-        return self.z.copy()
-
-
-class NonlinearESO:
-    """Order-n fal-ESO (paper eq. 4 with g_i = fal(·, α_i, δ), eq. 38), explicit Euler.
-
-    With ``compensate=True`` :meth:`update` returns z' = z + D with
-    D_i = β_{i−1}·g_{i−1}(e1), g_0(e) = e (paper eq. 34/39). Inside |e1| ≤ δ it equals a
-    :class:`LinearESO` with gains β_i·δ^(α_i − 1). Same time convention as LinearESO/euler.
-    """
-
-    def __init__(self, n: int, b0: float, h_s: float, betas: Sequence[float],
-                 alphas: Sequence[float], delta: float, compensate: bool = False):
-        _check_order(n)
-        self.betas = _check_betas(n, betas)
-        if len(alphas) != n + 1 or not all(0.0 < a <= 1.0 for a in alphas):
-            raise ValueError(f'NonlinearESO: need {n + 1} alphas in (0, 1], got {alphas}')
-        if not (delta > 0.0):
-            raise ValueError(f'NonlinearESO: delta = {delta} must be > 0 (linear-zone width)')
-        if not (h_s > 0.0):
-            raise ValueError(f'NonlinearESO: h_s = {h_s} must be > 0 (seconds)')
-        self.n, self.b0, self.h_s = n, float(b0), float(h_s)
-        self.alphas = np.array(alphas, dtype=float)
-        self.delta = float(delta)
-        self.compensate = compensate
-        self.A, self.B, *_ = continuous_matrices(n, self.betas, b0)
-        self._beta = np.array(self.betas)
-        self.z = np.zeros(n + 1)
-
-    def gains(self, e1: float) -> np.ndarray:
-        """g_i(e1) = fal(e1, α_i, δ) for i = 1..n+1."""
-        return fal(ARRAY, np.full(self.n + 1, float(e1)), self.alphas, self.delta)
-
-    def reset(self, y0: float, rest: Sequence[float] | None = None) -> None:
-        """Set z1 = y0 and the higher states to ``rest`` (zeros by default)."""
-        self.z = np.zeros(self.n + 1)
-        self.z[0] = y0
-        if rest is not None:
-            self.z[1:] = rest
-
-    def update(self, y: float, u: float) -> np.ndarray:
-        """Feed one sample; return the estimate at this sample time (+ D if compensating)."""
-        e1 = y - self.z[0]
-        g = self.gains(e1)
-        out = self.z.copy()
-        if self.compensate:
-            out[0] += e1
-            out[1:] += self._beta[:-1] * g[:-1]
-        self.z = self.z + self.h_s * (self.A @ self.z + self.B * u + self._beta * g)
-        return out
-
-
-# ---------------------------------------------------------------- helpers
-def _check_order(n: int) -> None:
+def check_order(n: int) -> None:
+    """Raise ValueError unless the observer order ``n`` is an integer >= 1."""
     if not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f'ESO order n = {n!r}: must be an integer >= 1 (plant order)')
 
 
-def _check_betas(n: int, betas: Sequence[float]) -> tuple[float, ...]:
+def check_betas(n: int, betas: Sequence[float]) -> tuple[float, ...]:
+    """Return ``betas`` as n+1 positive floats; raise ValueError otherwise."""
     betas = tuple(float(b) for b in betas)
     if len(betas) != n + 1:
         raise ValueError(f'an order-{n} ESO needs {n + 1} gains beta_1..beta_{n + 1}, got'
@@ -425,11 +266,9 @@ def _check_betas(n: int, betas: Sequence[float]) -> tuple[float, ...]:
 
 
 __all__ = [
-    'ARRAY', 'LinearESO', 'NonlinearESO', 'SCALAR', 'bandwidth_gains', 'compensate1',
-    'compensate2',
-    'continuous_matrices', 'eso1_euler_step', 'eso1_fal_step', 'eso1_zoh_step',
-    'eso2_euler_step', 'eso2_fal_step', 'fal_alphas',
-    'eso2_zoh_step', 'euler_is_stable', 'euler_stability_limit', 'seed_gains_order1',
-    'static_error', 'zoh_gains', 'zoh_gains_from_betas', 'zoh_gains_from_poles',
-    'zoh_matrices',
+    'ARRAY', 'SCALAR', 'bandwidth_gains', 'check_betas', 'check_order', 'compensate1',
+    'compensate2', 'continuous_matrices',
+    'eso1_euler_step', 'eso1_fal_step', 'eso1_zoh_step', 'eso2_euler_step', 'eso2_fal_step',
+    'eso2_zoh_step', 'euler_is_stable', 'fal_alphas', 'zoh_gains', 'zoh_gains_from_betas',
+    'zoh_gains_from_poles', 'zoh_matrices',
 ]

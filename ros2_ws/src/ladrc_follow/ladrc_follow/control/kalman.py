@@ -14,7 +14,6 @@ time); :class:`HeightKalman` starts with P = p0.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 
 import numpy as np
 
@@ -51,18 +50,6 @@ class KalmanParams(Section):
                                     'reading', ge=1, le=1000, seed='docs/estimators.md')
     on_pid: bool = param(False, '', 'feed the PID the fused gap too (the same filter, run by '
                          'the follow controller while the PID runs)', seed='notes §4')
-
-
-def kalman_step(ops, x, p, z, dz_enc, q, r):
-    """One predict/update step; returns ``(x, p, k)`` (notes §4 eqs. (1)-(5)).
-
-    Predict x⁻ = x + Δenc, P⁻ = P + Q; gain K = P⁻/(P⁻ + R); update
-    x = x⁻ + K(z − x⁻), P = (1 − K)P⁻.
-    """
-    xp = x + dz_enc
-    pp = p + q
-    k = pp / (pp + r)
-    return xp + k * (z - xp), (1.0 - k) * pp, k
 
 
 def kalman_gated_step(ops, x, p, n_out, z, dz_enc, fresh, q, r, p0, gate, confirm):
@@ -108,84 +95,3 @@ def kalman_gated_step(ops, x, p, n_out, z, dz_enc, fresh, q, r, p0, gate, confir
             ops.where(restart, 0, n_new))
 
 
-def steady_state_gain(q: float, r: float) -> float:
-    """Limit of K for a scalar random walk: P⁻ = (Q + √(Q² + 4QR))/2, K = P⁻/(P⁻ + R).
-
-    P⁻ solves the scalar Riccati equation P⁻ = P⁻R/(P⁻ + R) + Q.
-    """
-    if not (q > 0.0 and r > 0.0):
-        raise ValueError(f'steady_state_gain: need q > 0 and r > 0, got {q}, {r}')
-    pm = 0.5 * (q + math.sqrt(q * q + 4.0 * q * r))
-    return pm / (pm + r)
-
-
-class HeightKalman:
-    """Gap filter with the reset rules of the follow controller (scalar).
-
-    Rules (the notes enable the filter once followed, ``随动到位之后开启``):
-
-    * :meth:`reset` (call when the filter is switched on, e.g. on reaching "followed"):
-      x = the current reading, P = p0.
-    * An invalid reading (``valid=False`` or not finite): the tick is coasted on the
-      encoder alone (x += Δenc, P += Q) and the filter is marked for re-initialisation;
-      the next valid reading restarts it (x = reading, P = p0). More than
-      ``max_coast_ticks`` invalid ticks in a row leave it uninitialised (returns nan).
-    * A jump: z − x⁻ > ``gate_mm``, a reading wider than predicted (e.g. a sheet edge under
-      the nozzle, a change the random-walk model cannot explain; one-sided, see
-      :func:`kalman_gated_step`), re-initialises on the reading after
-      ``gate_confirm_ticks`` of them in a row (default 1: at once).
-
-    ``resets`` counts the re-initialisations for diagnostics.
-    """
-
-    def __init__(self, params: KalmanParams = KalmanParams(), gate_mm: float = 0.5,
-                 max_coast_ticks: int = 20, gate_confirm_ticks: int = 1):
-        bad = params.problems()
-        if not (gate_mm > 0.0):
-            bad.append(f'kalman gate_mm = {gate_mm}: must be > 0 mm')
-        if max_coast_ticks < 0:
-            bad.append(f'kalman max_coast_ticks = {max_coast_ticks}: must be >= 0')
-        if bad:
-            raise ValueError('; '.join(bad))
-        self.params, self.gate_mm, self.max_coast_ticks = params, gate_mm, max_coast_ticks
-        self.gate_confirm_ticks = gate_confirm_ticks
-        self.outliers = 0  # in a row
-        self.x = math.nan
-        self.p = math.nan
-        self.k = math.nan
-        self.initialised = False
-        self.coast_ticks = 0
-        self.resets = 0
-
-    def reset(self, z_mm: float) -> None:
-        """Start on reading ``z_mm`` with P = p0."""
-        self.x, self.p, self.k = float(z_mm), self.params.p0_mm2, 1.0
-        self.initialised = True
-        self.coast_ticks = 0
-        self.outliers = 0
-
-    def update(self, z_mm: float, dz_enc_mm: float, valid: bool = True) -> float:
-        """Fuse one reading with this tick's encoder increment; return the gap estimate."""
-        ok = valid and math.isfinite(z_mm)
-        if not ok:
-            if not self.initialised or self.coast_ticks >= self.max_coast_ticks:
-                self.initialised = False
-                self.x = math.nan
-                return self.x
-            self.coast_ticks += 1
-            self.x += dz_enc_mm
-            self.p += self.params.q_mm2
-            return self.x
-        if not self.initialised or self.coast_ticks > 0:
-            self.resets += 1
-            self.reset(z_mm)
-            return self.x
-        pa = self.params
-        off = z_mm - (self.x + dz_enc_mm)  # the rule of kalman_gated_step, for the count
-        if off < -self.gate_mm or (off > self.gate_mm
-                                   and self.outliers + 1 >= self.gate_confirm_ticks):
-            self.resets += 1
-        self.x, self.p, self.k, self.outliers = kalman_gated_step(
-            SCALAR, self.x, self.p, self.outliers, z_mm, dz_enc_mm, True, pa.q_mm2,
-            pa.r_mm2, pa.p0_mm2, self.gate_mm, self.gate_confirm_ticks)
-        return self.x

@@ -31,8 +31,6 @@ docs/control-law.md.
 
 from __future__ import annotations
 
-FORMS = (1, 2, 3)
-
 
 def form_weights(form: int, order: int) -> tuple[bool, float, float]:
     """Return ``(use_td, w_rate, w_acc)`` for law ``form`` of plant model ``order``.

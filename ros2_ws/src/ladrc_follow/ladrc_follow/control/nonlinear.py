@@ -173,28 +173,7 @@ DEFAULT_TABLE_SIZE = 257
 """Entries per table (2^8 + 1: a power-of-two number of cells, as a firmware would use)."""
 
 
-def default_tables(size: int = DEFAULT_TABLE_SIZE) -> dict[str, LookupTable]:
-    """Tables of each nonlinear function with unit shape gain, as documented in estimators.md.
-
-    fal is tabulated for the paper's NESO first channel (alpha 0.5, delta 0.05) on
-    [-1, 1]; the range of each table covers the region where the function is not
-    yet flat (clamped ones) or where the controller's errors live (the rest).
-    """
-    def arr(f, *args):
-        return lambda x: f(ARRAY, np.asarray(x, dtype=float), *args)
-
-    return {
-        'fal(0.5,0.05)': LookupTable(arr(fal, 0.5, 0.05), -1.0, 1.0, size, True, 'linear'),
-        'sat(1)': LookupTable(arr(sat, 1.0), -2.0, 2.0, size, True, 'clamp'),
-        'sigmoid(1)': LookupTable(arr(sigmoid, 1.0), -16.0, 16.0, size, True, 'clamp'),
-        'tanh(1)': LookupTable(arr(tanh_fn, 1.0), -8.0, 8.0, size, True, 'clamp'),
-        'atan(1)': LookupTable(arr(atan_fn, 1.0), -20.0, 20.0, size, True, 'linear'),
-        'asinh(1)': LookupTable(arr(asinh_fn, 1.0), -20.0, 20.0, size, True, 'linear'),
-        'sinh(1)': LookupTable(arr(sinh_fn, 1.0), -4.0, 4.0, size, True, 'linear'),
-    }
-
-
 __all__ = [
     'ARRAY', 'DEFAULT_TABLE_SIZE', 'LookupTable', 'SCALAR', 'asinh_fn', 'atan_fn',
-    'default_tables', 'fal', 'sat', 'sigmoid', 'sinh_fn', 'tanh_fn',
+    'fal', 'sat', 'sigmoid', 'sinh_fn', 'tanh_fn',
 ]

@@ -31,7 +31,6 @@ import math
 
 import numpy as np
 
-from .ops import SCALAR
 from .schema import Section, field_problems, param
 
 SAMPLE_PERIOD_S = 1.0 / 2000.0
@@ -83,30 +82,6 @@ class TDParams(Section):
         return out
 
 
-def td_params_from_wn_xi(wn_rad_s: float, xi: float, k1: float = 1.0,
-                         alpha: float = 0.0) -> TDParams:
-    """TD parameters with natural frequency ``wn_rad_s`` and damping ``xi`` (for a given k1).
-
-    Inverts ωn = R√k1, ξ = k2/(2√k1): R = ωn/√k1, k2 = 2ξ√k1.
-    """
-    if not (wn_rad_s > 0.0 and xi > 0.0 and k1 > 0.0):
-        raise ValueError(f'td_params_from_wn_xi: need wn_rad_s > 0, xi > 0, k1 > 0; got'
-                         f' {wn_rad_s}, {xi}, {k1}')
-    root = math.sqrt(k1)
-    return TDParams(k1=k1, k2=2.0 * xi * root, r_per_s=wn_rad_s / root, alpha=alpha)
-
-
-def td_step(ops, x1, x2, v, dv, k1, k2, r, alpha, h_s):
-    """One step of the notes' discrete forward form (§2.1), both updates from step k.
-
-    x1(k+1) = x1 + h·x2;  x2(k+1) = x2 + h·R²·(−k1(x1 − v) − k2·x2/R) + α·dv,
-    ``dv`` = the feed-forward input's increment this step. This is explicit Euler;
-    :func:`td_step_firmware` is the firmware's order.
-    """
-    f = -k1 * (x1 - v) - k2 * x2 / r
-    return x1 + h_s * x2, x2 + h_s * r * r * f + alpha * dv
-
-
 def td_step_firmware(ops, x1, x2, v, dv, k1, k2, r, alpha, h_s):
     """One step in ``ELDTrackerCalc``'s order: x1 first, then x2 from the **new** x1.
 
@@ -134,52 +109,5 @@ def td_discrete_matrix(p: TDParams, h_s: float, firmware_order: bool = True) -> 
 # Seed defaults (CompELDTInit): ints (k1, k2, R, Fc) = (22, 13, 30, 15) and (12, 40, 100, 0).
 TDA_FIRMWARE = TDParams(k1=2.2, k2=1.3, r_per_s=30.0, alpha=15.0)
 TDB_FIRMWARE = TDParams(k1=1.2, k2=4.0, r_per_s=100.0, alpha=0.0)
-# The notes' MATLAB simulation set "2019-12-1" (§2.3): TDA 2.2,1.3,30,15; TDB 2.2,2.8,30,18.
-TDA_SIM_2019 = TDParams(k1=2.2, k2=1.3, r_per_s=30.0, alpha=15.0)
-TDB_SIM_2019 = TDParams(k1=2.2, k2=2.8, r_per_s=30.0, alpha=18.0)
 
 
-def compound_td_step(ops, state, v, a_k1, a_k2, a_r, a_alpha, b_k1, b_k2, b_r, b_alpha, h_s,
-                     firmware_order=True):
-    """One step of the compound TD (``CompELDTUpdate``).
-
-    ``state = (a_x1, a_x2, b_x1, b_x2, v_prev)``. TDA tracks ``v`` with its own
-    increment ``v − v_prev`` as feed-forward; TDB tracks ``v`` with TDA's output
-    increment as feed-forward (firmware: ``ELDTrackerCalc(B, v, A->nTracker)`` after A
-    was updated). Returns the new state; TDB's ``(b_x1, b_x2)`` is the TD output.
-    """
-    step = td_step_firmware if firmware_order else td_step
-    a_x1, a_x2, b_x1, b_x2, v_prev = state
-    na_x1, na_x2 = step(ops, a_x1, a_x2, v, v - v_prev, a_k1, a_k2, a_r, a_alpha, h_s)
-    nb_x1, nb_x2 = step(ops, b_x1, b_x2, v, na_x1 - a_x1, b_k1, b_k2, b_r, b_alpha, h_s)
-    return na_x1, na_x2, nb_x1, nb_x2, v
-
-
-class CompoundTD:
-    """Convenience wrapper of :func:`compound_td_step` (scalar, or batch with ``ARRAY`` ops).
-
-    Parameters may be :class:`TDParams` of floats, or of numpy arrays for a batch.
-    """
-
-    def __init__(self, pa: TDParams = TDA_FIRMWARE, pb: TDParams = TDB_FIRMWARE,
-                 h_s: float = SAMPLE_PERIOD_S, ops=SCALAR, firmware_order: bool = True):
-        if not (h_s > 0.0):
-            raise ValueError(f'CompoundTD: h_s = {h_s} must be > 0 (seconds)')
-        self.pa, self.pb, self.h_s, self.ops = pa, pb, h_s, ops
-        self.firmware_order = firmware_order
-        self._args = (pa.k1, pa.k2, pa.r_per_s, pa.alpha, pb.k1, pb.k2, pb.r_per_s, pb.alpha,
-                      h_s)
-        self.state = None
-
-    def reset(self, v0) -> None:
-        """Start both TDs at rest on ``v0`` (``ELDTrackerInit``: x1 = v0, x2 = 0, ff = v0)."""
-        zero = v0 * 0.0
-        self.state = (v0 + zero, zero, v0 + zero, zero, v0 + zero)
-
-    def step(self, v):
-        """Advance one sample with reference ``v``; return TDB's ``(x1, x2)``."""
-        if self.state is None:
-            self.reset(v)
-        self.state = compound_td_step(self.ops, self.state, v, *self._args,
-                                      firmware_order=self.firmware_order)
-        return self.state[2], self.state[3]
