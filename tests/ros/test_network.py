@@ -8,8 +8,8 @@ from a user's that asks for the rmw's LOCALHOST range, which alone binds every i
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
-import random
 
 import pytest
 
@@ -26,8 +26,7 @@ pytestmark = pytest.mark.ros
 
 
 def test_bringup_binds_no_socket_outside_loopback(monkeypatch, tmp_path):
-    domain = random.randint(1, 101)
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    domain = int(os.environ['ROS_DOMAIN_ID'])  # the session's (tests/ros/conftest.py)
     probe = Probe()  # on the tests' own loopback settings (tests/ros/conftest.py)
     # the environment of a user who set nothing but the rmw's localhost range
     monkeypatch.delenv('FASTRTPS_DEFAULT_PROFILES_FILE', raising=False)
