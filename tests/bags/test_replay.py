@@ -329,7 +329,7 @@ def test_streamed_replay_equals_the_whole_run_replay(headless, monkeypatch):
     _, path = headless
     rec = load_recording(path)
     whole = compare(rec, replay(rec))
-    monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 301)
+    monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 301)
     # message by message: many slices
     monkeypatch.setattr('ladrc_tools.bags.bag.Bag._indexed_files', lambda self: None)
     monkeypatch.setattr('ladrc_tools.offline.replay.CHUNK_TICKS', 257)
@@ -406,7 +406,7 @@ def test_streamed_join_finds_late_out_of_order_and_repeated_commands(tmp_path, m
         ref = R._join_commands(b.columns('follow/status', R.REPLAY_FIELDS),
                                b.columns('axis/velocity_command', R.CMD_FIELDS))
     monkeypatch.setattr('ladrc_tools.bags.bag.Bag._indexed_files', lambda self: None)
-    monkeypatch.setattr('ladrc_tools.bags.bag.COLUMN_CHUNK', 37)
+    monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 37)
     parts = list(R._stream_batches(path, None))
     assert len(parts) > 1
     assert np.array_equal(np.concatenate([p.command for p in parts]), ref.command)
