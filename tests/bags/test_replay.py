@@ -153,7 +153,7 @@ def test_another_parameter_set_mismatches(headless, capsys, tmp_path):
 
 def test_own_replay_exits_1_on_mismatch(headless, tmp_path, capsys, monkeypatch):
     _, path = headless
-    import ladrc_tools.offline.replay as R
+    import ladrc_tools.offline.recording as R
 
     real = R._stream_batches
 
@@ -309,7 +309,7 @@ def test_replay_in_small_batches_is_the_same(headless, monkeypatch):
     _, path = headless
     rec = load_recording(path)
     whole = replay(rec)
-    monkeypatch.setattr('ladrc_tools.offline.replay.CHUNK_TICKS', 777)
+    monkeypatch.setattr('ladrc_tools.offline.recording.CHUNK_TICKS', 777)
     batched = replay(rec)
     assert np.array_equal(whole.velocity.view(np.uint64), batched.velocity.view(np.uint64))
     assert np.array_equal(whole.enable, batched.enable)
@@ -332,7 +332,7 @@ def test_streamed_replay_equals_the_whole_run_replay(headless, monkeypatch):
     monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 301)
     # message by message: many slices
     monkeypatch.setattr('ladrc_tools.bags.bag.Bag._indexed_files', lambda self: None)
-    monkeypatch.setattr('ladrc_tools.offline.replay.CHUNK_TICKS', 257)
+    monkeypatch.setattr('ladrc_tools.offline.recording.CHUNK_TICKS', 257)
     srec = open_recording(path)
     assert srec.ticks is None and srec.n_ticks == rec.ticks.size
     summary, _ = run_streamed(srec, Replay(srec), whatif=False)
@@ -358,7 +358,7 @@ def test_comparison_across_batches_finds_the_gap_where_the_whole_run_does(headle
                       inputs={k: v[keep] for k, v in rec.inputs.items()},
                       status={k: v[keep] for k, v in rec.status.items()})
         whole = compare(cut, replay(cut))
-        monkeypatch.setattr('ladrc_tools.offline.replay.CHUNK_TICKS', 1029)
+        monkeypatch.setattr('ladrc_tools.offline.recording.CHUNK_TICKS', 1029)
         cmp = Comparison(live=False)
         run = Replay(cut)
         for rb, pb in run.batches():
@@ -377,7 +377,7 @@ def test_streamed_join_finds_late_out_of_order_and_repeated_commands(tmp_path, m
     The streamed join, in slices of 37 messages, equals the join over the whole run.
     """
     from ladrc_tools.bags.bag import RowPacker, open_bag
-    import ladrc_tools.offline.replay as R
+    import ladrc_tools.offline.recording as R
 
     rng = np.random.default_rng(7)
     n = 3000
