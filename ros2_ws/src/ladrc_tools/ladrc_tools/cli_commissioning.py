@@ -1,0 +1,277 @@
+"""The ``ladrc`` subcommands of commissioning a real axis: identify, excite, conform, calibrate.
+
+Each is an add-arguments function and a run function (``cli.py``'s table); docs/identification.md,
+docs/conformance.md, docs/calibration.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+import sys
+
+from .cli_common import CliError
+
+
+# ---- identify / excite (commissioning a real axis, docs/identification.md) ---------------
+def _add_identify(p: argparse.ArgumentParser) -> None:
+    p.add_argument('bag', help='bag with axis/velocity_command and axis/feedback (and '
+                   'axis/capacitive_height over a flat sheet for the sensor)')
+    p.add_argument('-o', '--output', help='output folder (default: <bag>_identify); never '
+                   'overwritten')
+    p.add_argument('--flat-sheet-window', metavar='T0:T1',
+                   help='seconds after the first feedback sample where the nozzle is over a '
+                   'flat sheet, for the sensor fit (default: the whole bag)')
+    p.add_argument('--max-dead-time-ms', type=float, default=20.0,
+                   help='longest dead time searched [20 ms]')
+
+
+def _run_identify(a: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .commissioning.identify import IdentifyError
+    from .commissioning.identify_report import identify_bag, parse_window, write_outputs
+    from .offline.report import strict_json
+
+    bag = Path(a.bag)
+    base = bag.parent if bag.is_file() else bag  # a bag folder, or a file inside it
+    out = Path(a.output) if a.output else base.with_name(base.name + '_identify')
+    if out.exists():
+        raise CliError(f'{out} exists already: outputs are never overwritten')
+    try:
+        ident = identify_bag(bag, parse_window(a.flat_sheet_window), a.max_dead_time_ms * 1e-3)
+        summ = write_outputs(ident, out)
+    except IdentifyError as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # extreme data
+        raise CliError(f"the bag's data cannot be fitted ({type(exc).__name__}: "
+                       f'{" ".join(str(exc).split())[:200]})') from None
+    ax = ident.axis
+    print(f'axis: b0 {ax.b0.value:.6g} [{ax.b0.ci[0]:.6g}, {ax.b0.ci[1]:.6g}], T1 '
+          f'{ax.t1_s.value * 1e3:.4g} ms, dead time {ax.dead_time_s.value * 1e3:.4g} ms, '
+          f'residual RMS {ax.residual_rms_mm * 1e3:.3g} µm')
+    if ident.sensor is not None:
+        se = ident.sensor
+        print(f'sensor: gain {se.gain.value:.4g}, lag {se.lag_s.value * 1e3:.3g} ms, noise '
+              f'{se.noise_mm * 1e3:.3g} µm')
+    sg = ident.suggestion
+    print(f'suggested: eso.b0 {sg.eso_b0:g}, eso.w0_rad_s {sg.w0_rad_s:g}, law.wc_rad_s '
+          f'{sg.wc_rad_s:g} (gate passed)')
+    print(f'written: {out}/identification.md, fit.png, params.yaml, identification.json')
+    print(json.dumps(strict_json(summ)))
+    return 0
+
+
+def _add_excite(p: argparse.ArgumentParser) -> None:
+    from .commissioning.excitation import KINDS, Excitation
+
+    d = Excitation()
+    p.add_argument('-o', '--output', required=True, help='bag folder to write (never '
+                   'overwritten)')
+    p.add_argument('--scenario', help='scenario YAML file or shipped name (default: the '
+                   'built-in identification scenario: 5 mm above a flat sheet)')
+    p.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                   help='scenario override, repeatable: axis.b0=1.3, axis.t1_s=0.004, '
+                   'axis.dead_time_ticks=6, sensor.lag_s=0.001, seed=3, ...')
+    p.add_argument('--kind', choices=KINDS, default=d.kind, help=f'[{d.kind}]')
+    p.add_argument('--amplitude-mm-s', type=float, default=d.amplitude_mm_s,
+                   help=f'velocity amplitude [{d.amplitude_mm_s:g}]')
+    p.add_argument('--max-travel-mm', type=float, default=d.max_travel_mm,
+                   help=f'travel bound around the start [{d.max_travel_mm:g}]')
+    p.add_argument('--f-low-hz', type=float, default=d.f_low_hz, help=f'[{d.f_low_hz:g}]')
+    p.add_argument('--f-high-hz', type=float, default=d.f_high_hz, help=f'[{d.f_high_hz:g}]')
+    p.add_argument('--duration-s', type=float, default=d.duration_s,
+                   help=f'[{d.duration_s:g}]')
+    p.add_argument('--seed', type=int, default=d.seed, help=f'[{d.seed}]')
+    p.add_argument('--settle-s', type=float, default=0.2,
+                   help='rest before the excitation [0.2]')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='bag storage (default: mcap)')
+
+
+def _run_excite(a: argparse.Namespace) -> int:
+    from .commissioning.excitation import Excitation
+    from .commissioning.player import PlayerLimits
+    from .commissioning.simrun import (
+        SimRunError,
+        apply_overrides,
+        run_excitation,
+        scenario_dict,
+        write_bag,
+    )
+    from .offline.report import strict_json
+
+    if Path(a.output).exists():
+        raise CliError(f'{a.output} exists already: a bag is never overwritten')
+    exc = Excitation(kind=a.kind, amplitude_mm_s=a.amplitude_mm_s,
+                     max_travel_mm=a.max_travel_mm, f_low_hz=a.f_low_hz,
+                     f_high_hz=a.f_high_hz, duration_s=a.duration_s, seed=a.seed)
+    try:
+        data = apply_overrides(scenario_dict(a.scenario), a.set)
+        played = run_excitation(data, exc, PlayerLimits(settle_s=a.settle_s),
+                                source=a.scenario or '')
+    except SimRunError as err:
+        raise CliError(str(err)) from None
+    write_bag(played, a.output, a.storage)
+    sc, pl = played.result.scenario, played.player
+    out = {'bag': a.output, 'scenario': sc.name, 'axis_b0': sc.axis.b0,
+           'axis_t1_s': sc.axis.t1_s, 'axis_dead_time_ticks': sc.axis.dead_time_ticks,
+           'sensor_lag_s': sc.sensor.lag_s, 'sensor_noise_mm': sc.sensor.noise_std_mm,
+           'excitation': exc.as_dict(), 'finished': pl.finished,
+           'aborted': pl.abort_reason or None, 'max_excursion_mm': pl.max_excursion_mm}
+    if pl.abort_reason:
+        print(f'excitation aborted: {pl.abort_reason}', file=sys.stderr)
+    print(json.dumps(strict_json(out)))
+    return 0 if pl.finished else 1
+
+
+# ---- conform (the driver conformance kit, docs/conformance.md) ----------------------------
+def _add_conform(p: argparse.ArgumentParser) -> None:
+    from .commissioning.conformance import Plan
+
+    d = Plan()
+    g = p.add_mutually_exclusive_group()
+    g.add_argument('--sim', action='store_true',
+                   help='start the sim node as the drive (flat sheet, no follow commands) on an '
+                   'isolated DDS domain and check it')
+    g.add_argument('--driver-cmd', metavar='"CMD ..."',
+                   help='start this command (the driver) on an isolated DDS domain and check it '
+                   '(default without --sim: the driver already running on ROS_DOMAIN_ID)')
+    p.add_argument('-o', '--output', help='output folder: report.md, conform.json, bag/ '
+                   '(default: conform-<date>-<time>); never overwritten')
+    p.add_argument('--min-gap-mm', type=float, default=d.min_gap_mm,
+                   help=f'abort below this gap reading; the tests start only when the gap '
+                   f'minus --max-travel-mm stays above it [{d.min_gap_mm:g}]')
+    p.add_argument('--max-travel-mm', type=float, default=d.max_travel_mm,
+                   help=f'abort when the encoder leaves ±this around its start '
+                   f'[{d.max_travel_mm:g}]')
+    p.add_argument('--max-speed-mm-s', type=float, default=d.max_speed_mm_s,
+                   help=f'abort above this encoder speed; never commanded '
+                   f'[{d.max_speed_mm_s:g}]')
+    p.add_argument('--test-speed-mm-s', type=float, default=d.test_speed_mm_s,
+                   help=f'speed of the units-and-signs and watchdog tests '
+                   f'[{d.test_speed_mm_s:g}]')
+    p.add_argument('--test-travel-mm', type=float, default=d.test_travel_mm,
+                   help=f'travel up, then down, of the units-and-signs test '
+                   f'[{d.test_travel_mm:g}]')
+    p.add_argument('--no-excitation', action='store_true',
+                   help='skip the excitation segment (the bag then serves no identification)')
+    p.add_argument('--watchdog-timeout-ms', type=float, default=5.0,
+                   help="the drive's documented command timeout [5, docs/safety.md]")
+    p.add_argument('--sim-scenario', metavar='YAML',
+                   help='with --sim: this scenario instead of the built-in one (e.g. other '
+                   'axis parameters; keep it free of follow commands)')
+    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of the run (with --sim or '
+                   '--driver-cmd default: random 1..101)')
+    p.add_argument('--discovery-timeout-s', type=float, default=30.0,
+                   help="wait this long for the driver's topics [30]")
+
+
+def _run_conform(a: argparse.Namespace) -> int:
+    import dataclasses
+    import time
+
+    from .commissioning.conformance import Plan, Tolerances
+    from .node.conform_node import ConformError, ConformOptions, run_conform
+
+    d = Plan()
+    plan = dataclasses.replace(
+        d, min_gap_mm=a.min_gap_mm, max_travel_mm=a.max_travel_mm,
+        max_speed_mm_s=a.max_speed_mm_s, test_speed_mm_s=a.test_speed_mm_s,
+        test_travel_mm=a.test_travel_mm, excitation=None if a.no_excitation else d.excitation)
+    if a.sim_scenario and not a.sim:
+        raise CliError('--sim-scenario needs --sim')
+    if not 0.0 < a.watchdog_timeout_ms <= 1000.0:
+        raise CliError(f'--watchdog-timeout-ms {a.watchdog_timeout_ms:g}: must be in (0, 1000]')
+    out = Path(a.output or time.strftime('conform-%Y%m%d-%H%M%S'))
+    opts = ConformOptions(output=out, sim=a.sim, driver_cmd=a.driver_cmd, plan=plan,
+                          tolerances=Tolerances(watchdog_timeout_s=a.watchdog_timeout_ms * 1e-3),
+                          domain_id=a.domain_id, discovery_timeout_s=a.discovery_timeout_s,
+                          sim_scenario=a.sim_scenario)
+    try:
+        result, out = run_conform(opts)
+    except ConformError as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    for r in result.results:
+        print(f'{"pass" if r.passed else "FAIL"}  {r.name}: {r.reason}')
+    print(f'written: {out}/report.md, conform.json, bag/')
+    line = {'output': str(out), 'passed': result.passed,
+            'rules_passed': len(result.rules_passed), 'rules_failed': result.rules_failed,
+            'rules_total': len(result.results), 'aborted': result.aborted or None,
+            'not_run': result.not_run or None,
+            'figures': {r.name: r.as_dict()['figure'] for r in result.results}}
+    print(json.dumps(line))
+    return 0 if result.passed else 1
+
+
+# ---- calibrate (capacitive calibration, docs/calibration.md) -----------------------------
+def _add_calibrate(p: argparse.ArgumentParser) -> None:
+    from .commissioning.calibration import SweepMotion
+
+    d = SweepMotion()
+    p.add_argument('--sim', action='store_true',
+                   help='start the sim node on a DDS domain of its own and calibrate it '
+                   '(default: the driver on the current domain)')
+    p.add_argument('-o', '--output', default='calibration',
+                   help='output folder [calibration]; never overwritten')
+    p.add_argument('--descent-mm-s', type=float, default=d.descent_mm_s,
+                   help=f'descent speed to contact [{d.descent_mm_s:g}]')
+    p.add_argument('--retract-mm-s', type=float, default=d.retract_mm_s,
+                   help=f'retract speed back to the start [{d.retract_mm_s:g}]')
+    p.add_argument('--max-travel-mm', type=float, default=d.max_travel_mm,
+                   help=f'travel below the start without contact that ends the sweep '
+                   f'[{d.max_travel_mm:g}]')
+    p.add_argument('--min-start-gap-mm', type=float, default=d.min_start_gap_mm,
+                   help='smallest gap reading accepted at the start (where the driver '
+                   f'publishes one) [{d.min_start_gap_mm:g}]')
+    p.add_argument('--stale-ms', type=float, default=d.stale_timeout_s * 1e3,
+                   help=f'input age that aborts the sweep [{d.stale_timeout_s * 1e3:g}]')
+    p.add_argument('--sim-gap-mm', type=float, default=5.0,
+                   help='--sim: the start gap of the simulated axis [5]')
+    p.add_argument('--sim-noise-mm', type=float, default=0.005,
+                   help='--sim: sensor noise [0.005]')
+    p.add_argument('--lockstep', action='store_true',
+                   help='in lock step with the sim node (its --sim, or one the caller started '
+                   'with lockstep:=true): deterministic, no drive watchdog (docs/follow-node.md)')
+    p.add_argument('--sim-watchdog-ms', type=float, default=50.0,
+                   help="--sim: the simulated drive's command watchdog [50; the product's 5 ms "
+                   'trips on a loaded 2-core machine, docs/calibration.md]')
+
+
+def _run_calibrate(a: argparse.Namespace) -> int:
+    from .commissioning.calibration import CalibrationError
+    from .offline.report import strict_json
+
+    out = Path(a.output)
+    if out.exists():
+        raise CliError(f'{out} exists already: outputs are never overwritten')
+    motion = {'descent_mm_s': a.descent_mm_s, 'retract_mm_s': a.retract_mm_s,
+              'max_travel_mm': a.max_travel_mm, 'min_start_gap_mm': a.min_start_gap_mm,
+              'stale_timeout_s': a.stale_ms * 1e-3}
+    sim = None
+    if a.sim:
+        if not (0.5 <= a.sim_gap_mm <= 19.0 and 0.0 <= a.sim_noise_mm <= 1.0
+                and 0.5 <= a.sim_watchdog_ms <= 1000.0):
+            raise CliError('--sim-gap-mm must be in [0.5, 19], --sim-noise-mm in [0, 1], '
+                           '--sim-watchdog-ms in [0.5, 1000]')
+    try:
+        from .node.calibrate_node import SimOptions, run_calibration
+
+        if a.sim:
+            sim = SimOptions(a.sim_gap_mm, a.sim_noise_mm, a.sim_watchdog_ms * 1e-3)
+        result = run_calibration(str(out), motion, sim, lockstep=a.lockstep)
+    except (CalibrationError, FileNotFoundError) as exc:
+        raise CliError(' '.join(str(exc).split())) from None
+    except ImportError as exc:
+        raise CliError(f'the ROS workspace is not built ({exc}): scripts/setup-env') from None
+    if result.get('problems'):
+        print('table rejected: ' + '; '.join(result['problems']), file=sys.stderr)
+    else:
+        print(f'table: {result["table_file"]} ({result["points"]} points, '
+              f'{result["gap_min_mm"]:.3f}–{result["gap_max_mm"]:.3f} mm, grade '
+              f'{result["grade"]})')
+    print(f'written: {result["output"]}/calibration.md, calibration.png, calibration.json, '
+          'sweep.csv')
+    print(json.dumps(strict_json(result)))
+    return 0 if result.get('ok') else 1
