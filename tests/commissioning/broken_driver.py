@@ -125,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     if 'reliable_only' in defects:  # the contract's profiles, reliable, in this process
         qos.HIGH_RATE = qos.Qos(reliable=True, transient_local=False, depth=100)
         qos.CONTROL_INPUT = qos.Qos(reliable=True, transient_local=False, depth=1)
+        qos.DRIVE_COMMAND_INPUT = qos.Qos(reliable=True, transient_local=False, depth=10)
     sn.SimNode, sn.DriveBridge = make_classes(defects)
     with tempfile.TemporaryDirectory(prefix='broken-driver-') as tmp:
         if not any(x.startswith('scenario:=') for x in ros_args):

@@ -10,10 +10,16 @@ tests/test_contract_once.py fails when a QoS profile is made anywhere else.
   per topic at 2 kHz) cost enough CPU that the writers' keep-last history overflowed and the
   recorder lost 7-50 % of the samples; best effort lost 0-0.1 %. Every sample carries a seq
   counter, so a loss is measured, never silent.
-* Control-path inputs (the controller's samples, the drive's commands): BEST_EFFORT, KEEP_LAST
-  1. A control loop wants the freshest sample: with a deeper queue a reader that falls behind
-  works through old samples (input age grew to depth x 0.5 ms), and a late sample is useless to
-  a zero-order hold. Samples superseded before use are counted from the seq gaps.
+* Control-path inputs (the controller's samples): BEST_EFFORT, KEEP_LAST 1. A control loop
+  wants the freshest sample: with a deeper queue a reader that falls behind works through old
+  samples (input age grew to depth x 0.5 ms), and a late sample is useless to a zero-order
+  hold. Samples superseded before use are counted from the seq gaps.
+* The drive's command input: BEST_EFFORT, KEEP_LAST 10 (5 ms at 2 kHz, one watchdog). The drive
+  takes every command that arrived since its last cycle, oldest first, and holds the latest one
+  its commander lock admits: with depth 1 all writers share one slot, so a commander's command
+  arriving after a foreign one in the same cycle erased it (the foreign commander was seen
+  cycles late: 6 cycles measured in a fresh-clone run) and a second commander's first command
+  erased the first's release (a handover seen as a foreign command).
 * The recorder reads best effort with a deep history (5 s: it takes in batches).
 * Events (follow commands and parameter sets as applied): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST
   100, so a recorder started late still gets the parameter set in force.
@@ -63,6 +69,7 @@ class Qos:
 
 HIGH_RATE = Qos(reliable=False, transient_local=False, depth=100)
 CONTROL_INPUT = Qos(reliable=False, transient_local=False, depth=1)
+DRIVE_COMMAND_INPUT = Qos(reliable=False, transient_local=False, depth=10)
 RECORDER_READER = Qos(reliable=False, transient_local=False, depth=10000)  # 5 s at 2 kHz
 EVENTS = Qos(reliable=True, transient_local=True, depth=100)
 RUN_TEXT = Qos(reliable=True, transient_local=True, depth=1)

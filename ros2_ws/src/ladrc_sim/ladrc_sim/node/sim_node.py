@@ -150,7 +150,7 @@ class SimNode(LoopNode):
         # the drive's command input, taken from by the loop thread (DriveBridge.take_commands)
         self.cmd_reader = self.create_loop_reader(
             VelocityCommand, COMMAND_TOPIC,
-            to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.CONTROL_INPUT))
+            to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.DRIVE_COMMAND_INPUT))
         self.cmd_cdr = CdrPacker('ladrc_msgs/msg/VelocityCommand')
         self.cmd_fields = [self.cmd_cdr.index[n] for n in COMMAND_FIELDS]
         # what the loop publishes: pre-serialized CDR from one value list per message

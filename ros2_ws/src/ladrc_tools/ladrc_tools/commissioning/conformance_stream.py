@@ -41,7 +41,7 @@ def compatible(writer: Endpoint, reader: Endpoint) -> tuple[bool, str]:
     return not why, '; '.join(why)
 
 
-# The contract's endpoints (docs/interfaces.md, QoS; ladrc_follow/node/qos.py).
+# The contract's endpoints (docs/interfaces.md, QoS; ladrc_contract/qos.py).
 CONTRACT_READER = Endpoint('controller', '', 'BEST_EFFORT', 'VOLATILE')
 
 
