@@ -134,9 +134,14 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
                                          'header.stamp.nanosec', 'state', 'overrun'])
         gap = b.columns('axis/capacitive_height', ['seq', 'header.stamp.sec',
                                                    'header.stamp.nanosec'])
+        status_ns = (st['header.stamp.sec'].astype(np.int64) * 1_000_000_000
+                     + st['header.stamp.nanosec'])
+        last_sample_ns = int((gap['header.stamp.sec'].astype(np.int64) * 1_000_000_000
+                              + gap['header.stamp.nanosec']).max())
         faults: dict[str, int] = {}  # fault reason (its cause, numbers dropped) -> ticks
         for _, msg in b.messages('/follow/status'):
-            if msg.state == 5:
+            stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if msg.state == 5 and stamp_ns <= last_sample_ns:
                 cause = msg.fault_reason.split(':')[0].split(' (')[0][:60]
                 faults[cause] = faults.get(cause, 0) + 1
         missed = []  # the follow node's count of samples it never received, at 1 Hz
@@ -145,7 +150,9 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
                 if s.name.startswith('ladrc_follow'):
                     values = {kv.key: kv.value for kv in s.values}
                     missed.append(float(values.get('missed_gap_samples', 'nan')))
-    keep = st['t_s'] >= st['t_s'][0] + WARMUP_S
+    # from the end of the approach to the sim's last sample (after it the sim has finished and
+    # the controller, still running until the bring-up stops it, faults on stale input)
+    keep = (st['t_s'] >= st['t_s'][0] + WARMUP_S) & (status_ns <= last_sample_ns)
     t = st['t_s'][keep]
     ticks = st['tick'][keep].astype(np.int64)
     period = st['period_us'][keep]

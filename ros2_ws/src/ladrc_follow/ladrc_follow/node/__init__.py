@@ -1,4 +1,4 @@
-"""ROS layer of the controller: the 2 kHz follow node, its QoS profiles, the fast CDR packer.
+"""ROS layer of the controller: the follow node, its loop thread, samples, housekeeping.
 
 Imports rclpy and the message packages; the control itself is :mod:`ladrc_follow.control`.
 """
