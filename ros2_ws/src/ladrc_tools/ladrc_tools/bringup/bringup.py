@@ -49,7 +49,7 @@ def default_params_file() -> str:
     return str(Path(__file__).resolve().parents[2] / 'config' / 'follow.yaml')
 
 
-LIVE_LOOPS = ('deadline', 'sync', 'timer')
+LIVE_LOOPS = ('deadline', 'sync')
 """The follow node's loops against a drive (``lockstep`` is the sim node's alone)."""
 
 
@@ -114,7 +114,7 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
                'empty: the shipped config/follow.yaml'),
     'bag': ('', 'record every contract topic into this bag folder (must not exist); empty: '
             'no recorder'),
-    'loop': ('deadline', "follow node tick source: 'deadline', 'sync' or 'timer' "
+    'loop': ('deadline', "follow node tick source: 'deadline' or 'sync' "
              '(docs/follow-node.md)'),
     'lockstep': ('false', 'simulated runs only: the sim node and the follow node in lock step '
                  '(deterministic, equal to the headless runner; docs/follow-node.md)'),
