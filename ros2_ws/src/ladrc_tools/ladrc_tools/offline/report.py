@@ -112,19 +112,160 @@ class _TruthJoin:
         return gap, collision
 
 
+class _StatusPass:
+    """The accumulators of one pass over ``follow/status`` (:func:`analyse`).
+
+    Whether the controller reports its state (then there is no target while IDLE) is known
+    only at its first non-IDLE tick: until then both readings are accumulated (``plain``:
+    the recorded target; ``idle``: no target while IDLE) and the other is dropped then.
+    """
+
+    def __init__(self, bag: Bag, v_max: float | None, truth: _TruthJoin | None) -> None:
+        self.bag = bag
+        self.v_max = v_max
+        self.truth = truth
+        self.n_status = bag.count('follow/status')
+        self.timing = {k: Quantiles() for k in TIMING}
+        self.last_seq: dict[str, int] = {}
+        self.lost = {t: 0 for t in SEQ_FIELD if bag.has(t)}
+        self.state_seen = False
+        self.pending: dict[str, np.ndarray] = {}
+        self.acc: dict[str, Any] = {}  # 'plain' / 'idle' -> MetricsAccumulator
+        self.env: dict[str, Envelope] = {}
+        self.first: dict[str, float] = {}
+        self.overruns = 0
+        self.n_done = 0
+        self.prev_rate = (math.nan, math.nan)  # last (t, true gap): the gap rate across slices
+
+    def _start(self, st: dict[str, np.ndarray]) -> None:
+        """Set the period (median tick spacing of the first rows) and the accumulators."""
+        from ladrc_sim.headless import metrics as M
+
+        self.first['stamp_s'] = float(st['stamp_s'][0])
+        h_s = float(np.median(np.diff(st['stamp_s']))) if st['stamp_s'].size > 1 else 0.0
+        if not (math.isfinite(h_s) and h_s > 0.0):
+            raise BagError(f'{self.bag.path}: follow/status stamps do not advance: no period')
+        self.first['h_s'] = h_s
+        for name in ('plain', 'idle'):
+            self.acc[name] = M.MetricsAccumulator(h_s, v_max_mm_s=self.v_max or math.inf)
+            self.env[name] = Envelope(self.n_status)
+
+    def _true_gap(self, st: dict[str, np.ndarray], t: np.ndarray,
+                  series: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Return the error's gap and the collisions: the truth joined, else the measured gap."""
+        if self.truth is None:
+            return st['gap_mm'].astype(float), np.zeros(t.size, dtype=bool)
+        gap, collision = self.truth.join(st['stamp_s'])
+        series['true_gap_mm'] = gap
+        if self.n_done:  # central differences across the slice boundary
+            t0, gap0 = self.prev_rate
+            rate = np.gradient(np.r_[gap0, gap], np.r_[t0, t])[1:]
+        else:
+            rate = np.gradient(gap, t) if t.size > 1 else np.zeros(t.size)
+        series['true_gap_rate'] = rate
+        self.prev_rate = (float(t[-1]), float(gap[-1]))
+        return gap, collision
+
+    def process(self, st: dict[str, np.ndarray]) -> None:
+        """Accumulate status rows whose truth is known."""
+        if not self.acc:
+            self._start(st)
+        t = st['stamp_s'] - self.first['stamp_s']
+        state = st['state'].astype(int)
+        if not self.state_seen and np.any(state != 0):
+            self.state_seen = True  # a controller that reports its state: no target while IDLE
+            del self.acc['plain'], self.env['plain']
+        series = {'t_s': t, 'gap_mm': st['gap_mm'], 'state': state,
+                  'followed': st['followed'], 'velocity_mm_s': st['velocity_mm_s'],
+                  'u_unlimited_mm_s': st['u_unlimited_mm_s']}
+        gap, collision = self._true_gap(st, t, series)
+        flags = st['limit_flags'].astype(np.int64)
+        limits = {'limit_v': (flags & LIMIT_VELOCITY) != 0,
+                  'limit_a': (flags & LIMIT_ACCELERATION) != 0}
+        for name in self.acc:
+            target = st['target_gap_mm'].astype(float)
+            # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold
+            # zeros, which would squash the plots' scales.
+            active = np.ones(state.size, bool)
+            if name == 'idle':
+                target = np.where(state != 0, target, np.nan)
+                active = np.isin(state, (3, 4))
+            self.acc[name].add(t, gap, target, collision, st['velocity_mm_s'], limits)
+            self.env[name].add({**series, 'target_mm': target, **{
+                col: np.where(active, st[col].astype(float), np.nan)
+                for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3')}})
+        for k in TIMING:
+            self.timing[k].add(st[k])
+        self.overruns += int(np.count_nonzero(st['overrun']))
+        self.n_done += t.size
+
+    def flush(self, final: bool, latest_ns: int) -> None:
+        """Process the waiting rows the truth read so far covers (all of them at the end)."""
+        pending, truth = self.pending, self.truth
+        if not pending or pending['tick'].size == 0:
+            if truth is not None:
+                truth.keep_recent()
+            return
+        k = pending['tick'].size
+        if truth is not None and not final:
+            # covered by the truth read so far, or waited HOLD_NS of bag time
+            k = max(truth.ready(pending['stamp_s']), int(np.searchsorted(
+                pending['timestamp_ns'], latest_ns - HOLD_NS, 'right')))
+        if not self.acc and k < 2 and not final:
+            return  # the period needs two rows
+        if k:
+            self.process({c: v[:k] for c, v in pending.items()})
+            for c in list(pending):
+                pending[c] = pending[c][k:]
+
+    def count_lost(self, topic: str, cols: dict[str, np.ndarray]) -> None:
+        """Count the messages of ``topic`` lost before the recorder (seq gaps)."""
+        seq = cols[SEQ_FIELD[topic]].astype(np.int64)
+        if topic in self.last_seq:
+            seq = np.r_[self.last_seq[topic], seq]
+        self.lost[topic] += count_lost(seq)
+        if seq.size:
+            self.last_seq[topic] = int(seq[-1])
+
+    def read(self, wanted: dict[str, Any], progress: bool) -> None:
+        """Make the one pass over the bag, in time slices."""
+        show = stderr_progress('reading the bag') if progress else None
+        latest_ns = 0
+        for part in self.bag.stream(wanted, progress=show):
+            for topic, cols in part.items():
+                if cols['timestamp_ns'].size:
+                    latest_ns = max(latest_ns, int(cols['timestamp_ns'][-1]))
+                if topic in SEQ_FIELD:
+                    self.count_lost(topic, cols)
+            if self.truth is not None and 'sim/truth' in part:
+                self.truth.add(part['sim/truth'])
+            st = part.get('follow/status')
+            if st is not None:
+                for c in REPORT_FIELDS + ('timestamp_ns',):
+                    self.pending[c] = (np.concatenate((self.pending[c], st[c]))
+                                       if c in self.pending else st[c])
+            self.flush(False, latest_ns)
+        self.flush(True, latest_ns)
+
+
+def _recording(bag: Bag) -> dict[str, Any] | None:
+    """Return the live run's ``recording.json`` beside the bag's files, if readable."""
+    rec_file = bag.path / 'recording.json' if bag.path.is_dir() else None
+    if rec_file is not None and rec_file.is_file():
+        try:
+            return json.loads(rec_file.read_text())
+        except (OSError, ValueError):
+            return None
+    return None
+
+
 def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``).
 
     ONE pass over the bag in time slices (:meth:`Bag.stream`); memory is that of a slice plus
     the accumulators (metrics, timing quantiles, plot envelope), whatever the bag's length.
     The plot series come back decimated (:mod:`.envelope`).
-
-    Whether the controller reports its state (then there is no target while IDLE) is known
-    only at its first non-IDLE tick: until then both readings are accumulated (``plain``:
-    the recorded target; ``idle``: no target while IDLE) and the other is dropped then.
     """
-    from ladrc_sim.headless import metrics as M
-
     bag.require('follow/status')
     n_status = bag.count('follow/status')
     if n_status < 2:
@@ -140,134 +281,31 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     wanted['follow/status'] = REPORT_FIELDS
     wanted['sim/truth'] = ['stamp_s', 'true_gap_mm', 'collision', 'seq']
     truth = _TruthJoin() if bag.count('sim/truth') > 1 else None
-    timing = {k: Quantiles() for k in TIMING}
-    last_seq: dict[str, int] = {}
-    lost = {t: 0 for t in SEQ_FIELD if bag.has(t)}
-    state_seen = [False]
-    pending: dict[str, np.ndarray] = {}
-    acc: dict[str, M.MetricsAccumulator] = {}
-    env: dict[str, Envelope] = {}
-    first: dict[str, float] = {}
-    overruns = [0]
-    n_done = [0]
-    prev_rate = [math.nan, math.nan]  # last (t, true gap) for the gap rate across slices
-
-    def process(st: dict[str, np.ndarray]) -> None:
-        if not acc:  # the period: median tick spacing of the first rows
-            first['stamp_s'] = float(st['stamp_s'][0])
-            h_s = float(np.median(np.diff(st['stamp_s']))) if st['stamp_s'].size > 1 else 0.0
-            if not (math.isfinite(h_s) and h_s > 0.0):
-                raise BagError(f'{bag.path}: follow/status stamps do not advance: no period')
-            first['h_s'] = h_s
-            for name in ('plain', 'idle'):
-                acc[name] = M.MetricsAccumulator(h_s, v_max_mm_s=v_max or math.inf)
-                env[name] = Envelope(n_status)
-        t = st['stamp_s'] - first['stamp_s']
-        state = st['state'].astype(int)
-        if not state_seen[0] and np.any(state != 0):
-            state_seen[0] = True  # a controller that reports its state: no target while IDLE
-            del acc['plain'], env['plain']
-        series = {'t_s': t, 'gap_mm': st['gap_mm'], 'state': state,
-                  'followed': st['followed'], 'velocity_mm_s': st['velocity_mm_s'],
-                  'u_unlimited_mm_s': st['u_unlimited_mm_s']}
-        gap = st['gap_mm'].astype(float)
-        collision = np.zeros(t.size, dtype=bool)
-        if truth is not None:
-            gap, collision = truth.join(st['stamp_s'])
-            series['true_gap_mm'] = gap
-            if n_done[0]:  # central differences across the slice boundary
-                rate = np.gradient(np.r_[prev_rate[1], gap], np.r_[prev_rate[0], t])[1:]
-            else:
-                rate = np.gradient(gap, t) if t.size > 1 else np.zeros(t.size)
-            series['true_gap_rate'] = rate
-            prev_rate[:] = [float(t[-1]), float(gap[-1])]
-        flags = st['limit_flags'].astype(np.int64)
-        limits = {'limit_v': (flags & LIMIT_VELOCITY) != 0,
-                  'limit_a': (flags & LIMIT_ACCELERATION) != 0}
-        for name in acc:
-            target = st['target_gap_mm'].astype(float)
-            # The TD and ESO run in PID (re-initialised) and LADRC only: elsewhere they hold
-            # zeros, which would squash the plots' scales.
-            active = np.ones(state.size, bool)
-            if name == 'idle':
-                target = np.where(state != 0, target, np.nan)
-                active = np.isin(state, (3, 4))
-            acc[name].add(t, gap, target, collision, st['velocity_mm_s'], limits)
-            env[name].add({**series, 'target_mm': target, **{
-                col: np.where(active, st[col].astype(float), np.nan)
-                for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3')}})
-        for k in TIMING:
-            timing[k].add(st[k])
-        overruns[0] += int(np.count_nonzero(st['overrun']))
-        n_done[0] += t.size
-
-    def flush(final: bool, latest_ns: int) -> None:
-        if not pending or pending['tick'].size == 0:
-            if truth is not None:
-                truth.keep_recent()
-            return
-        k = pending['tick'].size
-        if truth is not None and not final:
-            # covered by the truth read so far, or waited HOLD_NS of bag time
-            k = max(truth.ready(pending['stamp_s']), int(np.searchsorted(
-                pending['timestamp_ns'], latest_ns - HOLD_NS, 'right')))
-        if not acc and k < 2 and not final:
-            return  # the period needs two rows
-        if k:
-            process({c: v[:k] for c, v in pending.items()})
-            for c in list(pending):
-                pending[c] = pending[c][k:]
-
-    show = stderr_progress('reading the bag') if progress else None
-    latest_ns = 0
-    for part in bag.stream(wanted, progress=show):
-        for topic, cols in part.items():
-            if cols['timestamp_ns'].size:
-                latest_ns = max(latest_ns, int(cols['timestamp_ns'][-1]))
-            if topic in SEQ_FIELD:
-                seq = cols[SEQ_FIELD[topic]].astype(np.int64)
-                if topic in last_seq:
-                    seq = np.r_[last_seq[topic], seq]
-                lost[topic] += count_lost(seq)
-                if seq.size:
-                    last_seq[topic] = int(seq[-1])
-        if truth is not None and 'sim/truth' in part:
-            truth.add(part['sim/truth'])
-        st = part.get('follow/status')
-        if st is not None:
-            for c in REPORT_FIELDS + ('timestamp_ns',):
-                pending[c] = np.concatenate((pending[c], st[c])) if c in pending else st[c]
-        flush(False, latest_ns)
-    flush(True, latest_ns)
-    if not acc or n_done[0] < 2:
-        raise BagError(f'{bag.path}: follow/status holds {n_done[0]} readable message(s); '
+    run = _StatusPass(bag, v_max, truth)
+    run.read(wanted, progress)
+    if not run.acc or run.n_done < 2:
+        raise BagError(f'{bag.path}: follow/status holds {run.n_done} readable message(s); '
                        'a report needs a run')
-    name = 'idle' if state_seen[0] else 'plain'
-    metrics = acc[name].result()
-    series = env[name].result()
-    recording = None
-    rec_file = bag.path / 'recording.json' if bag.path.is_dir() else None
-    if rec_file is not None and rec_file.is_file():
-        try:
-            recording = json.loads(rec_file.read_text())
-        except (OSError, ValueError):
-            recording = None
+    name = 'idle' if run.state_seen else 'plain'
+    metrics = run.acc[name].result()
+    series = run.env[name].result()
     report = {
         'bag': str(bag.path),
         'source': bag.custom_data.get('ladrc.source', 'unknown'),
         'scenario': bag.custom_data.get('ladrc.scenario', ''),
         'duration_s': float(series['t_s'][-1]),
-        'ticks': int(n_done[0]),
-        'h_s': first['h_s'],
+        'ticks': int(run.n_done),
+        'h_s': run.first['h_s'],
         'error_against': ('true (sim/truth)' if truth is not None
                           else 'measured (follow/status gap_mm)'),
         'metrics': metrics.as_dict(),
-        'timing': {**{k: timing[k].stats() for k in TIMING}, 'overruns': overruns[0]},
+        'timing': {**{k: run.timing[k].stats() for k in TIMING}, 'overruns': run.overruns},
         'messages': dict(bag.message_counts),
-        'messages_lost': int(sum(lost.values())),
-        'messages_lost_by_topic': lost,
+        'messages_lost': int(sum(run.lost.values())),
+        'messages_lost_by_topic': run.lost,
         'v_max_mm_s': v_max,
     }
+    recording = _recording(bag)
     if recording is not None:
         report['recording'] = recording
     return report, series
