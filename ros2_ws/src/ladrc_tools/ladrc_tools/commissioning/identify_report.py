@@ -18,18 +18,9 @@ from typing import Any
 import numpy as np
 
 from ..bags.bag import BagError, open_bag
-from .identify import (
-    AxisFit,
-    IdentifyError,
-    SensorFit,
-    Suggestion,
-    axis_series,
-    fit_axis,
-    fit_sensor,
-    position_estimate,
-    sensor_series,
-    suggest,
-)
+from .identify import AxisFit, IdentifyError, axis_series, fit_axis
+from .identify_sensor import SensorFit, fit_sensor, position_estimate, sensor_series
+from .identify_suggest import Suggestion, suggest
 
 AXIS_TOPICS = ('axis/velocity_command', 'axis/feedback')
 SENSOR_TOPIC = 'axis/capacitive_height'
