@@ -32,12 +32,11 @@ from ladrc_tools.commissioning.calibration import (
     SweepInput,
     SweepMotion,
     SweepProcedure,
-    build_table,
     run_headless,
     sim_scenario,
-    summary,
-    write_calibration,
 )
+from ladrc_tools.commissioning.calibration_output import summary, write_calibration
+from ladrc_tools.commissioning.calibration_table import build_table
 import numpy as np
 import pytest
 from scipy.interpolate import PchipInterpolator

@@ -44,11 +44,11 @@ from ladrc_msgs.srv import Calibrate, StartFollow, StopFollow  # noqa: E402
 from ladrc_tools.bringup.bringup import executable_path  # noqa: E402
 from ladrc_tools.commissioning.calibration import (  # noqa: E402
     SweepMotion,
-    build_table,
     run_headless,
     sim_scenario,
-    write_calibration,
 )
+from ladrc_tools.commissioning.calibration_output import write_calibration  # noqa: E402
+from ladrc_tools.commissioning.calibration_table import build_table  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rosnodes import LATCHED, RELIABLE, NodeProcesses, Probe  # noqa: E402

@@ -1,7 +1,7 @@
 """Capacitive calibration (issue 15, item 3): the sweep to contact and the raw -> gap table.
 
-Pure (no rclpy). Three parts, each used by the node (``node/calibrate_node.py``), the
-``ladrc calibrate`` command and the tests:
+Pure (no rclpy). Three parts in three modules, each used by the node
+(``node/calibrate_node.py``), the ``ladrc calibrate`` command and the tests:
 
 1. :class:`SweepProcedure`, the motion, stepped once per 0.5 ms tick: from a start height
    (reading valid, and at least ``min_start_gap_mm`` where the driver publishes a gap) it
@@ -14,21 +14,13 @@ Pure (no rclpy). Three parts, each used by the node (``node/calibrate_node.py``)
    or moving the wrong way, a timeout) aborts with zero velocity and enable false.
    :meth:`SweepProcedure.on_sample` records every sensor sample (raw value, validity, status,
    encoder position); the node re-pairs the positions by stamp afterwards.
-2. :func:`build_table`, the processing: gap of each descent sample = encoder position −
-   contact position; table points at gaps from ``min_gap_mm`` up, spaced
-   ``clip(step_rel·gap, step_min_mm, step_max_mm)`` (finer near the sheet, where the
-   oscillator curve bends hardest); the raw value at each point by a local quadratic
-   least-squares fit of raw against gap over ±max(step, ``window_min_mm``) (the encoder is
-   exact, the raw value noisy: regress raw on gap). The fit residuals give the noise (in mm
-   through the local slope); the same fit on the retract samples gives the repeatability
-   (descent vs retract: a drifting sensor or a lag); with the simulator's truth, the table's
-   error against the true gap (window means, so the noise averages out).
-3. :func:`write_calibration`: the table file (``cap_table.yaml``, read by the controller:
-   ``ladrc_follow/control/cap_table.py``), the samples (``sweep.csv``), a plot, Markdown and
-   JSON, written under a temporary name and renamed when complete.
+2. :func:`~.calibration_table.build_table` (``calibration_table.py``), the processing: the
+   table's points and their local fits, noise, repeatability, the error against the sim's
+   truth, the controller's own checks and grade.
+3. :func:`~.calibration_output.write_calibration` (``calibration_output.py``): the table file
+   (``cap_table.yaml``), the samples (``sweep.csv``), a plot, Markdown and JSON.
 
-The checks and the grade of the table are the controller's own (``CapTable.problems``,
-``CapTable.grade``), so what the calibration accepts is what the follow node loads.
+This module holds part 1 and the settings of all three.
 """
 
 from __future__ import annotations
@@ -38,19 +30,12 @@ from dataclasses import dataclass, field, fields
 from enum import IntEnum
 import json
 import math
-from pathlib import Path
-import time
 from typing import Any, NamedTuple
 
 from ladrc_follow.control.cap_table import (
     STATUS_COLLISION,
     STATUS_FAULT,
     STATUS_OK,
-    CapTable,
-    RawToGap,
-    TableError,
-    TableLimits,
-    table_yaml,
 )
 import numpy as np
 
@@ -540,290 +525,3 @@ def run_headless(scenario: dict[str, Any], motion: SweepMotion | None = None
     except _Stop:
         pass
     return proc
-
-
-# ---- processing ------------------------------------------------------------------------
-@dataclass
-class Calibration:
-    """The result of :func:`build_table`: the table, its figures and the fit per point."""
-
-    table: CapTable
-    figures: dict[str, Any]
-    problems: list[str]
-    knots_gap_mm: np.ndarray
-    knots_raw_hz: np.ndarray
-    knots_noise_mm: np.ndarray
-    knots_samples: np.ndarray
-    retract_diff_mm: np.ndarray
-    truth_error_mm: np.ndarray
-    samples: dict[str, np.ndarray]
-
-    @property
-    def grade(self) -> str:
-        """The table's grade, 'F' when it has problems."""
-        return 'F' if self.problems else self.figures['grade']
-
-
-def _local_fit(g: np.ndarray, r: np.ndarray, order: np.ndarray, centre: float, half: float,
-               min_n: int) -> tuple[float, float, float, int]:
-    """Quadratic fit of raw on gap within ±half of ``centre``: (raw, slope, resid std, n)."""
-    lo = np.searchsorted(g[order], centre - half, side='left')
-    hi = np.searchsorted(g[order], centre + half, side='right')
-    idx = order[lo:hi]
-    n = len(idx)
-    if n < min_n:
-        return math.nan, math.nan, math.nan, n
-    u = (g[idx] - centre) / half
-    y = r[idx]
-    y0 = float(np.median(y))
-    a = np.stack([np.ones(n), u, u * u], axis=1)
-    coef, *_ = np.linalg.lstsq(a, y - y0, rcond=None)
-    resid = y - y0 - a @ coef
-    std = float(np.sqrt(resid @ resid / max(n - 3, 1)))
-    return float(coef[0] + y0), float(coef[1] / half), std, n
-
-
-def build_table(record: SweepRecord, settings: TableSettings | None = None,
-                limits: TableLimits | None = None, meta: dict[str, Any] | None = None
-                ) -> Calibration:
-    """Build, check and grade the raw -> gap table of a sweep (module docstring, part 2).
-
-    Raises :class:`CalibrationError` when no table can be built at all (no contact, too few
-    samples); a table that is built but fails a check comes back with ``problems``.
-    """
-    settings = settings or TableSettings()
-    limits = limits or TableLimits()
-    reasons = settings.problems()
-    if reasons:
-        raise CalibrationError('table settings: ' + '; '.join(reasons))
-    s = record.arrays()
-    z_c = record.contact_position_mm
-    if not math.isfinite(z_c):
-        raise CalibrationError('no contact position: the sweep did not reach the sheet')
-    gap = s['position_mm'] - z_c
-    usable = ((s['valid'] > 0) & (s['status'] == STATUS_OK) & np.isfinite(s['raw_hz'])
-              & np.isfinite(gap))
-    # the rest at the start (WAIT) and the descent: the table's samples
-    down = usable & ((s['phase'] == Phase.DESCEND) | (s['phase'] == Phase.WAIT))
-    up = usable & (s['phase'] == Phase.RETRACT)
-    if down.sum() < limits.min_points * settings.min_window_samples:
-        raise CalibrationError(f'only {int(down.sum())} valid samples on the descent: too '
-                               'few for a table')
-    gd, rd = gap[down], s['raw_hz'][down]
-    # up to the start height itself (the last windows are one-sided there, anchored by the
-    # rest at the start), so a follow can start where the calibration left the axis
-    top = float(np.max(gd))
-    knots = settings.knots(top)
-    if top - knots[-1] > 0.5 * settings.step_min_mm:
-        knots = np.append(knots, round(top, 9))
-    if len(knots) < 2:
-        raise CalibrationError(f'the descent covers only {top:.3f} mm above the contact: '
-                               'start higher')
-    halves = settings.half_window_mm(knots)
-    order = np.argsort(gd, kind='stable')
-    fits = [_local_fit(gd, rd, order, k, h, settings.min_window_samples)
-            for k, h in zip(knots, halves, strict=True)]
-    raw_k, slope_k, std_k, n_k = (np.array(c, dtype=float) for c in zip(*fits, strict=True))
-    problems = []
-    sparse = n_k < settings.min_window_samples
-    if sparse.any():
-        i = int(np.argmax(sparse))
-        problems.append(f'too few samples at {knots[i]:.3f} mm ({int(n_k[i])} within '
-                        f'±{halves[i]:.3f} mm, at least {settings.min_window_samples}): '
-                        'descend slower')
-    noise_k = std_k / np.abs(slope_k)
-    noise_mm = float(np.nanmedian(noise_k)) if np.isfinite(noise_k).any() else math.nan
-
-    # repeatability: the retract's fit at the same gaps, as a gap difference
-    diff = np.full(len(knots), np.nan)
-    if up.sum() >= settings.min_window_samples:
-        gu, ru = gap[up], s['raw_hz'][up]
-        order_u = np.argsort(gu, kind='stable')
-        for i, (k, h) in enumerate(zip(knots, halves, strict=True)):
-            r_u = _local_fit(gu, ru, order_u, k, h, settings.min_window_samples)[0]
-            diff[i] = (r_u - raw_k[i]) / slope_k[i]
-    rep = float(np.nanmax(np.abs(diff))) if np.isfinite(diff).any() else math.nan
-
-    ok = np.isfinite(raw_k)
-    table = CapTable(tuple(float(v) for v in raw_k[ok]), tuple(float(v) for v in knots[ok]),
-                     noise_mm if math.isfinite(noise_mm) else math.inf, rep,
-                     dict(meta or {}))
-    problems += table.problems(limits)
-    figures: dict[str, Any] = {
-        'points': len(table), 'range_mm': float(knots[ok][-1] - knots[ok][0]) if ok.any()
-        else 0.0,
-        'gap_min_mm': float(knots[ok][0]) if ok.any() else math.nan,
-        'gap_max_mm': float(knots[ok][-1]) if ok.any() else math.nan,
-        'noise_mm': noise_mm, 'noise_max_mm': float(np.nanmax(noise_k)) if ok.any()
-        else math.nan,
-        'repeatability_mm': rep,
-        'roughness_mm': float(table.roughness_mm()) if not table.structure_problems(limits)
-        else math.nan,
-        'samples_descent': int(down.sum()), 'samples_retract': int(up.sum()),
-        'contact': record.contact_kind, 'contact_position_mm': z_c,
-        'start_position_mm': record.start_position_mm,
-    }
-    figures['grade'] = 'F' if problems else table.grade(figures['roughness_mm'])
-
-    # against the simulator's truth (when there is one): the table's error per point,
-    # averaged over each fit window so the sensor noise averages out
-    truth_err = np.full(len(knots), np.nan)
-    tg = s['true_gap_mm']
-    has_truth = down & np.isfinite(tg)
-    figures['max_error_mm'] = None
-    if has_truth.sum() > 0 and not problems:
-        conv = RawToGap(table, limits)
-        e = conv.gaps_mm(s['raw_hz'][has_truth]) - tg[has_truth]
-        gt = tg[has_truth]
-        for i, (k, h) in enumerate(zip(knots, halves, strict=True)):
-            sel = np.abs(gt - k) <= h
-            if sel.sum() >= settings.min_window_samples and np.isfinite(e[sel]).all():
-                truth_err[i] = float(np.mean(e[sel]))
-        if np.isfinite(truth_err).any():
-            figures['max_error_mm'] = float(np.nanmax(np.abs(truth_err)))
-            figures['sample_error_rms_mm'] = float(np.sqrt(np.nanmean(e * e)))
-            figures['contact_error_mm'] = float(
-                np.median((s['position_mm'] - tg)[has_truth]) - z_c)
-    return Calibration(table, figures, problems, knots, raw_k, noise_k, n_k, diff, truth_err,
-                       {k: v for k, v in s.items()} | {'gap_mm_enc': gap})
-
-
-# ---- output ----------------------------------------------------------------------------
-def _fmt(v: Any, unit: str = '') -> str:
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return 'n/a'
-    if isinstance(v, float):
-        return f'{v:.4g}{unit}'
-    return f'{v}{unit}'
-
-
-def summary(cal: Calibration) -> dict[str, Any]:
-    """Return the JSON summary (the CLI's last line): points, range, error, grade, noise."""
-    f = cal.figures
-    out = {k: f.get(k) for k in ('points', 'range_mm', 'max_error_mm', 'grade', 'noise_mm',
-                                 'repeatability_mm', 'roughness_mm', 'gap_min_mm',
-                                 'gap_max_mm', 'contact', 'contact_position_mm',
-                                 'samples_descent', 'samples_retract')}
-    out['grade'] = cal.grade
-    out['problems'] = list(cal.problems)
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-            for k, v in out.items()}
-
-
-def _plot(cal: Calibration, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    s = cal.samples
-    down = (s['phase'] == Phase.DESCEND) & (s['valid'] > 0) & np.isfinite(s['raw_hz'])
-    fig, ax = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
-    ax[0].plot(s['gap_mm_enc'][down], s['raw_hz'][down] * 1e-3, ',', color='0.6',
-               label='descent samples')
-    ax[0].plot(cal.knots_gap_mm, cal.knots_raw_hz * 1e-3, '.-', ms=3, label='table')
-    ax[0].set_ylabel('raw [kHz]')
-    ax[0].legend(loc='lower right')
-    ax[0].set_title(f'capacitive calibration: {len(cal.table)} points, grade {cal.grade}')
-    ax[1].plot(cal.knots_gap_mm, cal.knots_noise_mm * 1e3, label='noise per sample')
-    ax[1].plot(cal.knots_gap_mm, np.abs(cal.retract_diff_mm) * 1e3,
-               label='|retract − descent|')
-    ax[1].set_ylabel('µm')
-    ax[1].legend()
-    if np.isfinite(cal.truth_error_mm).any():
-        ax[2].plot(cal.knots_gap_mm, cal.truth_error_mm * 1e3, label='table − true gap')
-        ax[2].legend()
-    else:
-        ax[2].text(0.5, 0.5, 'no truth (real sensor)', ha='center', transform=ax[2].transAxes)
-    ax[2].set_ylabel('error [µm]')
-    ax[2].set_xlabel('gap (encoder − contact) [mm]')
-    for a in ax:
-        a.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def markdown(cal: Calibration, title: str = 'Capacitive calibration') -> str:
-    """Return the calibration report (calibration.md)."""
-    f = cal.figures
-    meta = cal.table.meta
-    lines = [f'# {title}', '',
-             f'Grade **{cal.grade}**' + (': rejected' if cal.problems else '') + '.', '']
-    if cal.problems:
-        lines += ['Problems:', ''] + [f'- {p}' for p in cal.problems] + ['']
-    rows = [('points', f['points']), ('gap range', f"{_fmt(f['gap_min_mm'])}–"
-                                                  f"{_fmt(f['gap_max_mm'], ' mm')}"),
-            ('noise per sample (median over the points)', _fmt(f['noise_mm'], ' mm')),
-            ('noise per sample (largest)', _fmt(f['noise_max_mm'], ' mm')),
-            ('repeatability (retract − descent, largest)', _fmt(f['repeatability_mm'], ' mm')),
-            ('roughness (leave-one-out, largest)', _fmt(f['roughness_mm'], ' mm')),
-            ('error against the true gap (largest, window means)',
-             _fmt(f['max_error_mm'], ' mm')),
-            ('contact', f"{f['contact'] or 'none'} at {_fmt(f['contact_position_mm'], ' mm')}"),
-            ('samples (descent / retract)', f"{f['samples_descent']} / {f['samples_retract']}")]
-    for k in ('descent_mm_s', 'retract_mm_s', 'source', 'created'):
-        if k in meta:
-            rows.append((k, str(meta[k])))
-    lines += ['| figure | value |', '| --- | --- |'] + [f'| {a} | {b} |' for a, b in rows]
-    lines += ['', '![calibration](calibration.png)', '',
-              'Files: `cap_table.yaml` (the table: set `sensor.table_file` of the follow node '
-              'to it), `sweep.csv` (every sample), `calibration.json`.', '']
-    return '\n'.join(lines)
-
-
-def write_calibration(cal: Calibration, out: Path, title: str = 'Capacitive calibration'
-                      ) -> Path:
-    """Write table, samples, plot, Markdown and JSON into ``out`` (never overwritten)."""
-    from ..offline.outdir import building
-
-    out = Path(out)
-    if out.exists():
-        raise FileExistsError(f'{out} exists already: outputs are never overwritten')
-    with building(out) as tmp:
-        header = (f'Capacitive calibration table (docs/calibration.md), grade {cal.grade}.\n'
-                  'Load: follow node parameter sensor.table_file.')
-        if not cal.problems:
-            (tmp / 'cap_table.yaml').write_text(table_yaml(cal.table, header), encoding='utf-8')
-        else:
-            (tmp / 'cap_table.rejected.yaml').write_text(
-                table_yaml(cal.table, header + '\nREJECTED: ' + '; '.join(cal.problems)),
-                encoding='utf-8')
-        s = cal.samples
-        cols = list(COLUMNS) + ['gap_mm_enc']
-        data = np.stack([s[c] for c in cols], axis=1)
-        np.savetxt(tmp / 'sweep.csv', data, delimiter=',', header=','.join(cols),
-                   comments='', fmt='%.10g')
-        _plot(cal, tmp / 'calibration.png')
-        (tmp / 'calibration.md').write_text(markdown(cal, title), encoding='utf-8')
-        (tmp / 'calibration.json').write_text(json.dumps(
-            {**summary(cal), 'figures': {k: v for k, v in cal.figures.items()},
-             'meta': dict(cal.table.meta)}, indent=1, default=_json_default),
-            encoding='utf-8')
-    return out
-
-
-def _json_default(v: Any) -> Any:
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    return str(v)
-
-
-def table_meta(motion: SweepMotion, record: SweepRecord, source: str) -> dict[str, Any]:
-    """Metadata written into the table file: how, when and where the sweep was made."""
-    return {'source': source,
-            'created': time.strftime('%Y-%m-%dT%H:%M:%S%z'),
-            'descent_mm_s': motion.descent_mm_s, 'retract_mm_s': motion.retract_mm_s,
-            'contact': record.contact_kind,
-            'contact_position_mm': record.contact_position_mm,
-            'start_position_mm': record.start_position_mm}
-
-
-def check_table_file(path: str | Path, limits: TableLimits | None = None) -> RawToGap:
-    """Load a table file as the follow node does; :class:`CalibrationError` with reasons."""
-    from ladrc_follow.control.cap_table import load_table
-
-    try:
-        return load_table(path, limits or TableLimits())
-    except TableError as exc:
-        raise CalibrationError('; '.join(exc.reasons)) from None

@@ -12,8 +12,8 @@ While a sweep runs, a 2 kHz deadline loop steps the pure
 command. Every sensor sample is recorded in its callback, with the feedback samples and, when
 a simulator publishes it, ``sim/truth``; afterwards the encoder position of each sensor sample
 is interpolated at its stamp (exact when the driver stamps both alike, as the sim node does)
-and the table is built, checked and written (:func:`~ladrc_tools.commissioning.calibration.
-build_table`, :func:`~ladrc_tools.commissioning.calibration.write_calibration`).
+and the table is built, checked and written (:func:`~ladrc_tools.commissioning.calibration_table.
+build_table`, :func:`~ladrc_tools.commissioning.calibration_output.write_calibration`).
 
 Lock step (``lockstep: true``, against the sim node in lock step, docs/follow-node.md): the
 node ticks once per ``sim/lockstep`` step, on the sim's clock, and answers every step (zero with
@@ -51,16 +51,9 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
-from ..commissioning.calibration import (
-    CalibrationError,
-    SweepInput,
-    SweepMotion,
-    SweepProcedure,
-    build_table,
-    summary,
-    table_meta,
-    write_calibration,
-)
+from ..commissioning.calibration import CalibrationError, SweepInput, SweepMotion, SweepProcedure
+from ..commissioning.calibration_output import summary, table_meta, write_calibration
+from ..commissioning.calibration_table import build_table
 
 # every sample of the sweep is wanted (not only the freshest): a deep best-effort reader
 RECORD = qos.HIGH_RATE.with_depth(200)
