@@ -429,6 +429,53 @@ class SimOptions(NamedTuple):
     raw_only: bool = False
 
 
+def _start_sim(sim: SimOptions, motion: dict[str, float], lockstep: bool
+               ) -> tuple[Any, Any]:
+    """Start the sim node on a DDS domain of its own; return ``(process, its temp folder)``."""
+    import os
+    import subprocess
+    import tempfile
+
+    import yaml
+
+    from ..bringup.bringup import MIDDLEWARE_KEYS, executable_path, isolated_env
+    from ..commissioning.calibration import sim_scenario
+
+    os.environ.update({k: v for k, v in isolated_env().items() if k in MIDDLEWARE_KEYS})
+    os.environ.pop('ROS_LOCALHOST_ONLY', None)
+    tmp = tempfile.TemporaryDirectory(prefix='ladrc-calibrate-')
+    scenario = Path(tmp.name) / 'calibrate_sensor.yaml'
+    scenario.write_text(yaml.safe_dump(sim_scenario(
+        sim.start_gap_mm, SweepMotion(**motion), noise_std_mm=sim.noise_mm)))
+    log = open(Path(tmp.name) / 'sim.log', 'wb')  # noqa: SIM115
+    proc = subprocess.Popen(
+        [executable_path('ladrc_sim', 'sim_node'), '--ros-args', '-p',
+         f'scenario:={scenario}', '-p', 'wait_for_controller_s:=0.0', '-p',
+         f'watchdog_timeout_s:={sim.watchdog_s}', '-p',
+         f'raw_only:={str(sim.raw_only).lower()}']
+        + (['-p', 'lockstep:=true', '-p', 'realtime:=false'] if lockstep else []),
+        stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ), start_new_session=True)
+    log.close()
+    return proc, tmp
+
+
+def _start_sweep(node: CalibrateNode, executor, running: list[bool], output: str,
+                 wait_s: float) -> None:
+    """Wait for the driver's samples (at most ``wait_s``) and start the sweep, or raise."""
+    deadline = time.monotonic() + wait_s
+    accepted, message = False, f'no samples from the driver within {wait_s:g} s'
+    while running[0] and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+        if node.gap_t > -math.inf and node.enc_t > -math.inf:
+            accepted, message = node.start(output)
+            if accepted or 'no recent samples' not in message:
+                break
+    if not running[0]:
+        raise KeyboardInterrupt
+    if not accepted:
+        raise CalibrationError(message)
+
+
 def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | None = None,
                     wait_s: float = 10.0, lockstep: bool = False) -> dict[str, Any]:
     """Run one sweep in this process (``ladrc calibrate``); return the result.
@@ -437,42 +484,15 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
     discovery) and ended by its PID afterwards. Raises :class:`CalibrationError` (one line)
     when the sweep cannot start or ends without a table, KeyboardInterrupt on Ctrl-C.
     """
-    import os
-    import subprocess
-    import tempfile
+    from rclpy.experimental import EventsExecutor
 
-    import yaml
-
-    from ..bringup.bringup import (
-        MIDDLEWARE_KEYS,
-        executable_path,
-        interrupt_process,
-        isolated_env,
-    )
-    from ..commissioning.calibration import sim_scenario
+    from ..bringup.bringup import interrupt_process
 
     values = {**motion}
     reasons = SweepMotion(**values).problems()
     if reasons:
         raise CalibrationError('; '.join(reasons))
-    sim_proc = None
-    tmp = None
-    if sim is not None:
-        os.environ.update({k: v for k, v in isolated_env().items() if k in MIDDLEWARE_KEYS})
-        os.environ.pop('ROS_LOCALHOST_ONLY', None)
-        tmp = tempfile.TemporaryDirectory(prefix='ladrc-calibrate-')
-        scenario = Path(tmp.name) / 'calibrate_sensor.yaml'
-        scenario.write_text(yaml.safe_dump(sim_scenario(
-            sim.start_gap_mm, SweepMotion(**values), noise_std_mm=sim.noise_mm)))
-        log = open(Path(tmp.name) / 'sim.log', 'wb')  # noqa: SIM115
-        sim_proc = subprocess.Popen(
-            [executable_path('ladrc_sim', 'sim_node'), '--ros-args', '-p',
-             f'scenario:={scenario}', '-p', 'wait_for_controller_s:=0.0', '-p',
-             f'watchdog_timeout_s:={sim.watchdog_s}', '-p',
-             f'raw_only:={str(sim.raw_only).lower()}']
-            + (['-p', 'lockstep:=true', '-p', 'realtime:=false'] if lockstep else []),
-            stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ), start_new_session=True)
-        log.close()
+    sim_proc, tmp = _start_sim(sim, values, lockstep) if sim is not None else (None, None)
     running = [True]
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
 
@@ -490,24 +510,11 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
                      'lockstep': lockstep}
         node = CalibrateNode(context=context, parameter_overrides=[
             Parameter(k, value=v) for k, v in overrides.items()])
-        from rclpy.experimental import EventsExecutor
-
         executor = EventsExecutor(context=context)
         executor.add_node(node)
         apply_realtime(0 if lockstep else int(node.get_parameter('thread_priority').value), [],
                        bool(node.get_parameter('lock_memory').value))
-        deadline = time.monotonic() + wait_s
-        accepted, message = False, f'no samples from the driver within {wait_s:g} s'
-        while running[0] and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-            if node.gap_t > -math.inf and node.enc_t > -math.inf:
-                accepted, message = node.start(output)
-                if accepted or 'no recent samples' not in message:
-                    break
-        if not running[0]:
-            raise KeyboardInterrupt
-        if not accepted:
-            raise CalibrationError(message)
+        _start_sweep(node, executor, running, output, wait_s)
         run_loop(node, executor, running, until_done=True)
         if not running[0]:
             stop_commanding(node, 'interrupted')
