@@ -173,7 +173,8 @@ def _run_conform(a: argparse.Namespace) -> int:
     import time
 
     from .commissioning.conformance import Plan, Tolerances
-    from .node.conform_node import ConformError, ConformOptions, run_conform
+    from .node.conform_node import ConformError
+    from .node.conform_run import ConformOptions, run_conform
 
     d = Plan()
     plan = dataclasses.replace(
