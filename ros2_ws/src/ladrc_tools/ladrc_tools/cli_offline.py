@@ -199,20 +199,72 @@ def _add_replay(p: argparse.ArgumentParser) -> None:
                    help='compare the command only (faster; skips the ESO/state fields)')
 
 
+def _print_whatif(rec: Any, run: Any, summary: dict[str, Any], wi: Any,
+                  out: Path | None) -> int:
+    """Write and print a what-if's outputs (open loop: always exit code 0)."""
+    from .offline.replay import OPEN_LOOP_NOTE, write_whatif
+    from .offline.report import strict_json
+
+    table = wi.table(run.rejected)
+    written = write_whatif(rec.path, table, wi.plot.result(), run.params,
+                           run.params_source, out)
+    print(f'what-if ({OPEN_LOOP_NOTE})')
+    print(f'command RMS recorded {table["command_rms_recorded_mm_s"]:.4g} mm/s, what-if '
+          f'{table["command_rms_whatif_mm_s"]:.4g} mm/s; difference RMS '
+          f'{table["command_rms_difference_mm_s"]:.4g} mm/s, max '
+          f'{table["command_max_difference_mm_s"]:.4g} mm/s')
+    print(f'limit hits (v, a) recorded {tuple(table["limit_hits_recorded"].values())}, '
+          f'what-if {tuple(table["limit_hits_whatif"].values())}')
+    print(f'written: {written}/whatif.md, whatif.png, whatif.json, params.yaml')
+    line = {'mode': 'what-if', **summary, 'open_loop': True,
+            'command_rms_difference_mm_s': table['command_rms_difference_mm_s'],
+            'command_max_difference_mm_s': table['command_max_difference_mm_s'],
+            'output': str(written)}
+    print(json.dumps(strict_json(line)))
+    return 0
+
+
+def _print_own_replay(summary: dict[str, Any], out: Path | None) -> int:
+    """Print (and write) the verdict of a replay with the bag's own set: 0 when bit for bit."""
+    from .offline.report import strict_json
+
+    ok = summary['mismatches'] == 0 and summary['missing_ticks'] == 0
+    if summary['mismatches']:
+        fm = summary['first_mismatch']
+        print(f'MISMATCH: {summary["mismatches"]} tick(s) differ bit for bit, first at tick '
+              f'{summary["first_mismatch_tick"]} (recorded {fm["recorded_mm_s"]!r}, replayed '
+              f'{fm["replayed_mm_s"]!r} mm/s)')
+    elif summary['missing_ticks']:
+        print(f'bit-for-bit up to tick {summary["exact_until_tick"]} (the first missing tick); '
+              'NOT verified after it')
+    else:
+        print(f'bit-for-bit: all {summary["ticks"]} commands reproduced')
+    if summary['internal_mismatch_ticks']:
+        print(f'internals differ on {summary["internal_mismatch_ticks"]} tick(s): '
+              f'{summary["internal_mismatch_fields"]}')
+    line = {'mode': 'own', **summary}
+    if out is not None:
+        from .offline.outdir import building
+
+        with building(out) as tmp:
+            (tmp / 'replay.json').write_text(json.dumps(strict_json(line), indent=1))
+        line['output'] = str(out)
+    print(json.dumps(strict_json(line)))
+    return 0 if ok else 1
+
+
 def _run_replay(a: argparse.Namespace) -> int:
     from ladrc_follow.control.params import ParameterError
 
     from .offline.replay import (
-        OPEN_LOOP_NOTE,
         Replay,
         ReplayError,
         open_recording,
         parse_set,
         run_streamed,
         whatif_params,
-        write_whatif,
     )
-    from .offline.report import stderr_progress, strict_json
+    from .offline.report import stderr_progress
 
     whatif = bool(a.params or a.set or a.controller)
     try:
@@ -251,46 +303,8 @@ def _run_replay(a: argparse.Namespace) -> int:
               f'{summary["exact_until_tick"]}; {summary["mismatches_after_gap"]} mismatch(es) '
               'after it (the controller cannot be stepped over ticks the bag lacks)')
     if wi is not None:
-        table = wi.table(run.rejected)
-        written = write_whatif(rec.path, table, wi.plot.result(), run.params,
-                               run.params_source, out)
-        print(f'what-if ({OPEN_LOOP_NOTE})')
-        print(f'command RMS recorded {table["command_rms_recorded_mm_s"]:.4g} mm/s, what-if '
-              f'{table["command_rms_whatif_mm_s"]:.4g} mm/s; difference RMS '
-              f'{table["command_rms_difference_mm_s"]:.4g} mm/s, max '
-              f'{table["command_max_difference_mm_s"]:.4g} mm/s')
-        print(f'limit hits (v, a) recorded {tuple(table["limit_hits_recorded"].values())}, '
-              f'what-if {tuple(table["limit_hits_whatif"].values())}')
-        print(f'written: {written}/whatif.md, whatif.png, whatif.json, params.yaml')
-        line = {'mode': 'what-if', **summary, 'open_loop': True,
-                'command_rms_difference_mm_s': table['command_rms_difference_mm_s'],
-                'command_max_difference_mm_s': table['command_max_difference_mm_s'],
-                'output': str(written)}
-        print(json.dumps(strict_json(line)))
-        return 0
-    ok = summary['mismatches'] == 0 and summary['missing_ticks'] == 0
-    if summary['mismatches']:
-        fm = summary['first_mismatch']
-        print(f'MISMATCH: {summary["mismatches"]} tick(s) differ bit for bit, first at tick '
-              f'{summary["first_mismatch_tick"]} (recorded {fm["recorded_mm_s"]!r}, replayed '
-              f'{fm["replayed_mm_s"]!r} mm/s)')
-    elif summary['missing_ticks']:
-        print(f'bit-for-bit up to tick {summary["exact_until_tick"]} (the first missing tick); '
-              'NOT verified after it')
-    else:
-        print(f'bit-for-bit: all {summary["ticks"]} commands reproduced')
-    if summary['internal_mismatch_ticks']:
-        print(f'internals differ on {summary["internal_mismatch_ticks"]} tick(s): '
-              f'{summary["internal_mismatch_fields"]}')
-    line = {'mode': 'own', **summary}
-    if out is not None:
-        from .offline.outdir import building
-
-        with building(out) as tmp:
-            (tmp / 'replay.json').write_text(json.dumps(strict_json(line), indent=1))
-        line['output'] = str(out)
-    print(json.dumps(strict_json(line)))
-    return 0 if ok else 1
+        return _print_whatif(rec, run, summary, wi, out)
+    return _print_own_replay(summary, out)
 
 
 # ---- analyze ------------------------------------------------------------------------------
