@@ -59,13 +59,13 @@ from ladrc_tools.bringup.bringup import loopback_settings  # noqa: E402
 
 os.environ.update(loopback_settings(os.environ))
 
+from ladrc_contract.schema import entries  # noqa: E402
 from ladrc_follow.control.follow import FollowController  # noqa: E402
 from ladrc_follow.control.params import (  # noqa: E402
     ControllerParams,
     ParameterError,
     params_from_dict,
 )
-from ladrc_follow.control.schema import entries  # noqa: E402
 from ladrc_sim.headless import runner  # noqa: E402
 from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict  # noqa: E402
 from ladrc_tools.offline.suite import LAW_ONLY  # noqa: E402

@@ -1,7 +1,8 @@
-"""The contract is written once (ladrc_contract): QoS, code tables, the event codec, real time.
+"""The contract is written once (ladrc_contract): QoS, codes, event codec, real time, schema.
 
 Read from the sources' syntax trees (nothing is imported): a QoS profile, a table of message
-codes, the follow-command <-> event mapping, the tick input or the real-time set-up defined
+codes, the follow-command <-> event mapping, the tick input, the real-time set-up or a parameter
+declaration (a dataclass field carrying its declaration as metadata) defined
 anywhere but in its home in ``ladrc_contract`` fails here, with the file and line.
 """
 
@@ -59,6 +60,9 @@ def findings(source: str, where: str) -> list[str]:
                 out.append(f'{line}: a QoS profile made outside ladrc_contract/qos.py')
             if name in REALTIME_CALLS and where != CONTRACT + 'realtime.py':
                 out.append(f'{line}: {name} outside ladrc_contract/realtime.py')
+            if (name == 'field' and any(k.arg == 'metadata' for k in node.keywords)
+                    and where != CONTRACT + 'schema.py'):
+                out.append(f'{line}: a parameter declared outside ladrc_contract/schema.py')
         elif isinstance(node, ast.Attribute):
             owner = getattr(node.value, 'id', '')
             if node.attr in ('ReliabilityPolicy', 'DurabilityPolicy') or owner in (
@@ -102,6 +106,8 @@ def test_the_contract_is_written_once():
     'kind = FollowEvent.SET_TARGET\n',
     'import os\nos.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))\n',
     'from typing import NamedTuple\nclass TickInput(NamedTuple):\n    t_s: float\n',
+    ('from dataclasses import field\n'
+     'def spec(d, **kw):\n    return field(default=d, metadata=kw)\n'),
 ])
 def test_each_kind_of_second_definition_is_found(source):
     assert findings(source, 'ladrc_tools/ladrc_tools/somewhere.py')
@@ -111,6 +117,8 @@ def test_each_kind_of_second_definition_is_found(source):
     'from ladrc_contract.codes import GapStatus\nSTATUS_OK = int(GapStatus.OK)\n',
     'from ladrc_contract.qos import to_rclpy, HIGH_RATE\nq = to_rclpy(HIGH_RATE)\n',
     'kind = FollowEvent.PARAMETERS\n',
+    ('from ladrc_contract.schema import param\n'
+     "class P:\n    x: float = param(1.0, 'mm', 'x', gt=0)\n"),
 ])
 def test_uses_of_the_contract_are_not_definitions(source):
     assert not findings(source, 'ladrc_tools/ladrc_tools/somewhere.py')

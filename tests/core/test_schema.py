@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 import typing
 
+from ladrc_contract.schema import entries, markdown_table, param, value_problems
 from ladrc_follow.control.params import (
     ControllerParams,
     ParameterError,
@@ -13,7 +14,6 @@ from ladrc_follow.control.params import (
     params_from_dict,
     validate,
 )
-from ladrc_follow.control.schema import entries, markdown_table, param, value_problems
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]

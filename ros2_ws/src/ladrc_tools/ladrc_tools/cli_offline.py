@@ -425,8 +425,8 @@ kp·h < 1, contradicting limits, the follow windows) are in `ladrc_follow/contro
 
 def parameters_doc() -> str:
     """Return docs/parameters.md: the header and the generated table."""
+    from ladrc_contract.schema import markdown_table
     from ladrc_follow.control.params import ControllerParams
-    from ladrc_follow.control.schema import markdown_table
 
     return PARAMETERS_DOC_HEAD + markdown_table(ControllerParams())
 

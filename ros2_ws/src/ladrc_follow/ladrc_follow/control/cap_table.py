@@ -34,10 +34,9 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ladrc_contract.codes import GapStatus
+from ladrc_contract.schema import Section, param
 import numpy as np
 import yaml
-
-from .schema import Section, param
 
 __all__ = ['CapTableParams', 'TableLimits', 'CapTable', 'RawToGap', 'TableError', 'GRADES',
            'TABLE_FORMAT', 'pchip_slopes', 'hermite_eval', 'read_table', 'load_table',

@@ -43,9 +43,8 @@ from dataclasses import dataclass
 import math
 from math import isnan
 
+from ladrc_contract.schema import Section, param
 import numpy as np
-
-from .schema import Section, param
 
 _EDGE = 'notes §5.3 item 3 (边缘, 反馈系数)'
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .schema import Section, param
+from ladrc_contract.schema import Section, param
 
 _SM = 'notes §3.5 Follow_OnStep'
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from .schema import Section, param
+from ladrc_contract.schema import Section, param
 
 
 @dataclass(frozen=True)

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ladrc_contract.schema import Section, param
 import numpy as np
 
 from .ops import SCALAR
-from .schema import Section, param
 
 
 @dataclass(frozen=True)

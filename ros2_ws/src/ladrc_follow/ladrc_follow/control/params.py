@@ -28,6 +28,7 @@ from pathlib import Path
 import typing
 from typing import Any, Callable
 
+from ladrc_contract.schema import entries, field_problems, param
 import numpy as np
 import yaml
 
@@ -38,7 +39,6 @@ from .follow_params import FollowParams
 from .interp import InterpParams
 from .kalman import KalmanParams
 from .pid import PIDParams
-from .schema import entries, field_problems, param
 from .stability import StabilityParams
 from .td import TDA_FIRMWARE, TDB_FIRMWARE, TDParams
 

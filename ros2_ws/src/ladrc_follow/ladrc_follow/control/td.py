@@ -29,9 +29,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from ladrc_contract.schema import Section, field_problems, param
 import numpy as np
-
-from .schema import Section, field_problems, param
 
 SAMPLE_PERIOD_S = 1.0 / 2000.0
 """The firmware's ``SAMPLE_PERIOD 2000`` (ticks per second): h = 0.5 ms."""

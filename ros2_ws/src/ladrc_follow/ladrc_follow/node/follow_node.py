@@ -43,6 +43,7 @@ from ladrc_contract.events import encode as encode_event
 from ladrc_contract.loop_io import LoopNode
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
+from ladrc_contract.schema import Entry, entries, field_problems
 from ladrc_contract.services import FOLLOW_SERVICES, command_args, service_class
 from ladrc_contract.topics import (
     COMMAND_TOPIC,
@@ -83,7 +84,6 @@ from ..control.params import (
     dump_params,
     params_from_dict,
 )
-from ..control.schema import Entry, entries, field_problems
 from .gate_process import GateProcess
 from .housekeeping import Housekeeping
 from .loop_stats import LoopStats

@@ -1,7 +1,7 @@
 """The follow node's ROS parameters: its own and the controller's, as ROS declares them.
 
 :class:`NodeParams` are the node's start-up settings; :func:`descriptor` and :func:`ros_value`
-turn the one declaration of each controller parameter (``control/schema.py``) into its ROS
+turn the one declaration of each controller parameter (``ladrc_contract/schema.py``) into its ROS
 descriptor and value; :func:`params_file_problem` reads ``--params-file`` before rcl does.
 """
 
@@ -11,10 +11,9 @@ from array import array
 from dataclasses import dataclass
 from typing import Any
 
+from ladrc_contract.schema import Entry, param
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 import yaml
-
-from ..control.schema import Entry, param
 
 LOOP_MODES = ('sync', 'deadline', 'lockstep')
 

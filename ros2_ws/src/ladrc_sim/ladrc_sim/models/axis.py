@@ -39,11 +39,12 @@ This module also holds the small range-check helper the other model parameter cl
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 import math
 from math import isnan
 from typing import Any
 
+from ladrc_contract.schema import first_problem, param
 import numpy as np
 from scipy import signal
 
@@ -63,62 +64,34 @@ class ParamError(ValueError):
         self.reason = message
 
 
-def spec(default: Any, *, gt: float | None = None, ge: float | None = None,
-         le: float | None = None, lt: float | None = None,
-         choices: tuple[str, ...] | None = None, why: str = '', inf_ok: bool = False) -> Any:
-    """Declare a dataclass field with a default and its allowed range.
-
-    Numbers must be finite; with ``inf_ok`` +inf is allowed and means "never" (an end time).
-    """
-    meta = {'gt': gt, 'ge': ge, 'le': le, 'lt': lt, 'choices': choices, 'why': why,
-            'inf_ok': inf_ok}
-    return field(default=default, metadata=meta)
-
-
 def check_fields(obj: Any) -> None:
-    """Raise :class:`ParamError` for the first field of ``obj`` outside its declared range."""
-    for f in fields(obj):
-        meta = f.metadata
-        if not meta:
-            continue
-        value = getattr(obj, f.name)
-        if value is None:
-            continue
-        why = f" ({meta['why']})" if meta.get('why') else ''
-        choices = meta.get('choices')
-        if choices is not None:
-            if value not in choices:
-                raise ParamError(f.name, f'{value!r} is not one of {", ".join(choices)}{why}')
-            continue
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if math.isnan(value) or (math.isinf(value) and not (meta.get('inf_ok') and value > 0)):
-                raise ParamError(f.name, f'is {value}, a finite number is required')
-            for key, ok, word in (('gt', lambda v, b: v > b, '>'),
-                                  ('ge', lambda v, b: v >= b, '>='),
-                                  ('lt', lambda v, b: v < b, '<'),
-                                  ('le', lambda v, b: v <= b, '<=')):
-                bound = meta.get(key)
-                if bound is not None and not ok(value, bound):
-                    raise ParamError(f.name, f'{value} out of range, must be {word} {bound}{why}')
+    """Raise :class:`ParamError` for the first field of ``obj`` outside its declaration.
+
+    The declarations are the contract's schema (``ladrc_contract.schema.param``), as the
+    controller's parameters; None marks an optional value.
+    """
+    problem = first_problem(obj)
+    if problem is not None:
+        raise ParamError(*problem)
 
 
 @dataclass(frozen=True)
 class AxisParams:
     """Parameters of the Z drive (see the module docstring for the defaults' rationale)."""
 
-    model: str = spec('first_order', choices=('first_order', 'identified'))
-    b0: float = spec(1.0, gt=0.0, why='plant gain, mm/s of axis speed per mm/s of command')
-    t1_s: float = spec(0.008, gt=0.0, why='velocity-loop time constant T1')
-    v_max_mm_s: float = spec(200.0, gt=0.0)
-    a_max_mm_s2: float = spec(5000.0, gt=0.0)
-    dead_time_ticks: int = spec(0, ge=0, le=1000, why='whole ticks of command delay')
-    identified_gain: float = spec(1.0 / 16.75, gt=0.0, why='command scale into the §1.2 model')
+    model: str = param('first_order', choices=('first_order', 'identified'))
+    b0: float = param(1.0, '', 'plant gain, mm/s of axis speed per mm/s of command', gt=0.0)
+    t1_s: float = param(0.008, '', 'velocity-loop time constant T1', gt=0.0)
+    v_max_mm_s: float = param(200.0, gt=0.0)
+    a_max_mm_s2: float = param(5000.0, gt=0.0)
+    dead_time_ticks: int = param(0, '', 'whole ticks of command delay', ge=0, le=1000)
+    identified_gain: float = param(1.0 / 16.75, '', 'command scale into the §1.2 model', gt=0.0)
     # notes §1.2 coefficients, (n1 s + n0) / (s^2 + d1 s + d0); the notes' +/- (one standard
     # deviation) lets a run sit at an interval end (docs/identified-plant.md)
-    identified_n1: float = spec(IDENTIFIED_NUM[0], gt=0.0, why='§1.2 numerator s term, +/-0.2556')
-    identified_n0: float = spec(IDENTIFIED_NUM[1], why='§1.2 numerator constant, +/-1.816')
-    identified_d1: float = spec(IDENTIFIED_DEN[1], why='§1.2 denominator s term, +/-0.1804')
-    identified_d0: float = spec(IDENTIFIED_DEN[2], why='§1.2 denominator constant, +/-0.3627')
+    identified_n1: float = param(IDENTIFIED_NUM[0], '', '§1.2 numerator s term, +/-0.2556', gt=0.0)
+    identified_n0: float = param(IDENTIFIED_NUM[1], '', '§1.2 numerator constant, +/-1.816')
+    identified_d1: float = param(IDENTIFIED_DEN[1], '', '§1.2 denominator s term, +/-0.1804')
+    identified_d0: float = param(IDENTIFIED_DEN[2], '', '§1.2 denominator constant, +/-0.3627')
 
     def __post_init__(self) -> None:
         check_fields(self)

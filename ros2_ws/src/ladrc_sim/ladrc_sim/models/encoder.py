@@ -14,14 +14,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from .axis import H_S, check_fields, spec
+from ladrc_contract.schema import param
+
+from .axis import H_S, check_fields
 
 
 @dataclass(frozen=True)
 class EncoderParams:
     """Encoder resolution (1 µm by default, a typical linear scale / motor encoder)."""
 
-    resolution_mm: float = spec(0.001, ge=0.0, why='0 = not quantized')
+    resolution_mm: float = param(0.001, '', '0 = not quantized', ge=0.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -31,10 +33,10 @@ class EncoderParams:
 class Glitch:
     """One encoder fault: ``kind`` 'jump' or 'stuck' from ``t_s`` for ``duration_s``."""
 
-    kind: str = spec('jump', choices=('jump', 'stuck'))
-    t_s: float = spec(0.0, ge=0.0)
-    duration_s: float = spec(math.inf, gt=0.0, inf_ok=True)
-    size_mm: float = spec(0.0)
+    kind: str = param('jump', choices=('jump', 'stuck'))
+    t_s: float = param(0.0, ge=0.0)
+    duration_s: float = param(math.inf, gt=0.0, inf_ok=True)
+    size_mm: float = param(0.0)
 
     def __post_init__(self) -> None:
         check_fields(self)

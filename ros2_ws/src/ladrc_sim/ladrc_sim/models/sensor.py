@@ -44,10 +44,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from ladrc_contract.schema import param
 import numpy as np
 from scipy import signal
 
-from .axis import H_S, ParamError, check_fields, spec
+from .axis import H_S, ParamError, check_fields
 
 EPS0_PF_PER_MM = 8.8541878128e-3  # vacuum permittivity in pF/mm
 
@@ -56,21 +57,21 @@ EPS0_PF_PER_MM = 8.8541878128e-3  # vacuum permittivity in pF/mm
 class SensorParams:
     """Capacitive sensor parameters (defaults: an ideal sensor over a 0..20 mm range)."""
 
-    range_min_mm: float = spec(0.0)
-    range_max_mm: float = spec(20.0, gt=0.0)
-    noise_std_mm: float = spec(0.0, ge=0.0)
-    quant_mm: float = spec(0.0, ge=0.0, why='0 = no quantization')
-    lag_s: float = spec(0.0, ge=0.0, why='first-order filter time constant, 0 = none')
-    gain: float = spec(1.0, gt=0.0, why='feedback gain, 1 = calibrated')
-    gain_noise_std: float = spec(0.0, ge=0.0, lt=0.5)
-    gain_noise_cutoff_hz: float = spec(0.0, ge=0.0, lt=1000.0, why='0 = white per tick')
-    edge_fringe_mm: float = spec(7.0, gt=0.0)
-    edge_ripple: float = spec(0.1, ge=0.0, lt=1.0, why='< 1 keeps the reading monotonic')
-    edge_ripple_step_mm: float = spec(0.5, gt=0.0)
-    min_coverage: float = spec(0.05, ge=0.0, le=1.0)
-    osc_f0_hz: float = spec(500e3, gt=0.0)
-    parasitic_pf: float = spec(10.0, gt=0.0)
-    nozzle_diameter_mm: float = spec(8.0, gt=0.0)
+    range_min_mm: float = param(0.0)
+    range_max_mm: float = param(20.0, gt=0.0)
+    noise_std_mm: float = param(0.0, ge=0.0)
+    quant_mm: float = param(0.0, '', '0 = no quantization', ge=0.0)
+    lag_s: float = param(0.0, '', 'first-order filter time constant, 0 = none', ge=0.0)
+    gain: float = param(1.0, '', 'feedback gain, 1 = calibrated', gt=0.0)
+    gain_noise_std: float = param(0.0, ge=0.0, lt=0.5)
+    gain_noise_cutoff_hz: float = param(0.0, '', '0 = white per tick', ge=0.0, lt=1000.0)
+    edge_fringe_mm: float = param(7.0, gt=0.0)
+    edge_ripple: float = param(0.1, '', '< 1 keeps the reading monotonic', ge=0.0, lt=1.0)
+    edge_ripple_step_mm: float = param(0.5, gt=0.0)
+    min_coverage: float = param(0.05, ge=0.0, le=1.0)
+    osc_f0_hz: float = param(500e3, gt=0.0)
+    parasitic_pf: float = param(10.0, gt=0.0)
+    nozzle_diameter_mm: float = param(8.0, gt=0.0)
 
     def __post_init__(self) -> None:
         check_fields(self)

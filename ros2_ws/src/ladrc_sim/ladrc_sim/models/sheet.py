@@ -37,10 +37,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from ladrc_contract.schema import param
 import numpy as np
 from scipy import linalg, signal
 
-from .axis import H_S, ParamError, check_fields, spec
+from .axis import H_S, ParamError, check_fields
 
 INF = math.inf
 
@@ -53,7 +54,7 @@ def _window(t: np.ndarray, t_start: float, t_end: float) -> np.ndarray:
 class Flat:
     """Constant sheet height."""
 
-    height_mm: float = spec(0.0)
+    height_mm: float = param(0.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -67,8 +68,8 @@ class Flat:
 class Step:
     """A step of ``size_mm`` at ``t_s``."""
 
-    t_s: float = spec(0.0, ge=0.0)
-    size_mm: float = spec(1.0)
+    t_s: float = param(0.0, ge=0.0)
+    size_mm: float = param(1.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -82,11 +83,11 @@ class Step:
 class Sine:
     """A sine of amplitude ``amp_mm`` and frequency ``freq_hz`` inside a time window."""
 
-    amp_mm: float = spec(0.5, ge=0.0)
-    freq_hz: float = spec(1.0, gt=0.0)
-    phase_deg: float = spec(0.0)
-    t_start_s: float = spec(0.0, ge=0.0)
-    t_end_s: float = spec(INF, gt=0.0, inf_ok=True)
+    amp_mm: float = param(0.5, ge=0.0)
+    freq_hz: float = param(1.0, gt=0.0)
+    phase_deg: float = param(0.0)
+    t_start_s: float = param(0.0, ge=0.0)
+    t_end_s: float = param(INF, gt=0.0, inf_ok=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -104,11 +105,11 @@ class Sine:
 class Chirp:
     """A linear frequency sweep ``f0_hz -> f1_hz`` over ``sweep_s`` (notes §5.2: 0-5 Hz)."""
 
-    amp_mm: float = spec(0.5, ge=0.0)
-    f0_hz: float = spec(0.0, ge=0.0)
-    f1_hz: float = spec(5.0, gt=0.0)
-    sweep_s: float = spec(10.0, gt=0.0)
-    t_start_s: float = spec(0.0, ge=0.0)
+    amp_mm: float = param(0.5, ge=0.0)
+    f0_hz: float = param(0.0, ge=0.0)
+    f1_hz: float = param(5.0, gt=0.0)
+    sweep_s: float = param(10.0, gt=0.0)
+    t_start_s: float = param(0.0, ge=0.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -126,10 +127,10 @@ class Chirp:
 class Square:
     """A ``+-amp_mm`` square wave inside a time window."""
 
-    amp_mm: float = spec(0.5, ge=0.0)
-    freq_hz: float = spec(1.0, gt=0.0)
-    t_start_s: float = spec(0.0, ge=0.0)
-    t_end_s: float = spec(INF, gt=0.0, inf_ok=True)
+    amp_mm: float = param(0.5, ge=0.0)
+    freq_hz: float = param(1.0, gt=0.0)
+    t_start_s: float = param(0.0, ge=0.0)
+    t_end_s: float = param(INF, gt=0.0, inf_ok=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -144,10 +145,10 @@ class Square:
 class Triangle:
     """A ``+-amp_mm`` triangle wave inside a time window."""
 
-    amp_mm: float = spec(0.5, ge=0.0)
-    freq_hz: float = spec(1.0, gt=0.0)
-    t_start_s: float = spec(0.0, ge=0.0)
-    t_end_s: float = spec(INF, gt=0.0, inf_ok=True)
+    amp_mm: float = param(0.5, ge=0.0)
+    freq_hz: float = param(1.0, gt=0.0)
+    t_start_s: float = param(0.0, ge=0.0)
+    t_end_s: float = param(INF, gt=0.0, inf_ok=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -163,8 +164,8 @@ class Triangle:
 class Waviness:
     """Band-limited random waviness of ``rms_mm`` below ``cutoff_hz`` (temporal)."""
 
-    rms_mm: float = spec(0.05, ge=0.0)
-    cutoff_hz: float = spec(2.0, gt=0.0, lt=1000.0, why='must be below the Nyquist rate 1 kHz')
+    rms_mm: float = param(0.05, ge=0.0)
+    cutoff_hz: float = param(2.0, '', 'must be below the Nyquist rate 1 kHz', gt=0.0, lt=1000.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -192,12 +193,12 @@ class Waviness:
 class Ridge:
     """Tube-ridge crossing: a raised-cosine bump with a feedback-gain drop over it."""
 
-    t_s: float = spec(1.0, ge=0.0, why='time of the (first) crest')
-    height_mm: float = spec(0.3)
-    width_s: float = spec(0.05, gt=0.0)
-    gain_drop: float = spec(0.3, ge=0.0, lt=1.0, why='fraction of feedback gain lost at crest')
-    period_s: float = spec(0.0, ge=0.0, why='0 = a single ridge')
-    count: int = spec(1, ge=1)
+    t_s: float = param(1.0, '', 'time of the (first) crest', ge=0.0)
+    height_mm: float = param(0.3)
+    width_s: float = param(0.05, gt=0.0)
+    gain_drop: float = param(0.3, '', 'fraction of feedback gain lost at crest', ge=0.0, lt=1.0)
+    period_s: float = param(0.0, '', '0 = a single ridge', ge=0.0)
+    count: int = param(1, ge=1)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -224,13 +225,13 @@ class Ridge:
 class PlateParams:
     """Thin sheet lifted by the assist gas (notes §5.3 item 5)."""
 
-    natural_freq_hz: float = spec(6.0, gt=0.0, lt=1000.0)
-    damping_ratio: float = spec(0.03, ge=0.0, lt=1.0, why='lightly damped: 0 <= zeta < 1')
-    gas_k_mm2_s2: float = spec(2000.0, ge=0.0, why='gas push a = k / (gap + g0), mm/s^2')
-    gas_g0_mm: float = spec(0.5, gt=0.0, why='keeps the push finite at contact')
-    gas_on_s: float = spec(0.0, ge=0.0)
-    kick_t_s: float | None = spec(None, ge=0.0)
-    kick_velocity_mm_s: float = spec(0.0)
+    natural_freq_hz: float = param(6.0, gt=0.0, lt=1000.0)
+    damping_ratio: float = param(0.03, '', 'lightly damped: 0 <= zeta < 1', ge=0.0, lt=1.0)
+    gas_k_mm2_s2: float = param(2000.0, '', 'gas push a = k / (gap + g0), mm/s^2', ge=0.0)
+    gas_g0_mm: float = param(0.5, '', 'keeps the push finite at contact', gt=0.0)
+    gas_on_s: float = param(0.0, ge=0.0)
+    kick_t_s: float | None = param(None, ge=0.0)
+    kick_velocity_mm_s: float = param(0.0)
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -1,7 +1,9 @@
-"""The parameter schema: every controller parameter declared once, as a dataclass field.
+"""The parameter schema: every parameter declared once, as a dataclass field.
 
-A parameter is a field of one of the section dataclasses (``TDParams``, ``ESOParams``, …,
-gathered in :class:`~.params.ControllerParams`) declared with :func:`param`::
+The controller's parameters and the simulator's models use it alike (the sim may not import
+the controller, so it lives in the contract; pure Python, no rclpy). A controller parameter
+is a field of one of the section dataclasses (``TDParams``, ``ESOParams``, …, gathered in
+``ladrc_follow.control.params.ControllerParams``) declared with :func:`param`::
 
     w0_rad_s: float = param(60.0, 'rad/s', 'observer bandwidth ω0 (poles at −ω0)',
                             gt=0.0, le=5000.0, seed='notes §3.3')
@@ -15,7 +17,9 @@ comes from, and whether it may change while the node runs. Everything else deriv
   (docs/parameters.md, :func:`markdown_table`) lists;
 * :func:`field_problems`: the per-value checks (type, finiteness, range, choices) with one
   readable reason per bad value. Checks that involve several parameters (stability bounds,
-  contradicting limits) are written next to the whole set, in :mod:`.params`.
+  contradicting limits) are written next to the whole set (``ladrc_follow.control.params``);
+* :func:`first_problem`: the simulator's models refuse a value at construction with the first
+  reason (``ladrc_sim.models.axis.ParamError``).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import typing
 from typing import Any, Iterator
 
 __all__ = ['Spec', 'Entry', 'param', 'entries', 'field_problems', 'value_problems',
-           'markdown_table', 'Section']
+           'first_problem', 'markdown_table', 'Section']
 
 
 @dataclass(frozen=True)
@@ -40,8 +44,15 @@ class Spec:
     gt: float | None = None      # value > gt
     ge: float | None = None      # value >= ge
     le: float | None = None      # value <= le
+    lt: float | None = None      # value < lt
     choices: tuple = ()
     runtime: bool = True         # may change while the node runs (else read-only)
+    inf_ok: bool = False         # +inf allowed, meaning "never" (an end time)
+
+    @property
+    def upper(self) -> float | None:
+        """The upper bound (strict when ``lt`` is set)."""
+        return self.lt if self.lt is not None else self.le
 
     @property
     def lower(self) -> float | None:
@@ -52,10 +63,11 @@ class Spec:
         """``(0, 5000]``-style text of the valid range, or the choices."""
         if self.choices:
             return ' | '.join(str(c) for c in self.choices)
-        if self.lower is None and self.le is None:
+        if self.lower is None and self.upper is None:
             return ''
         left = '(' if self.gt is not None else '['
-        return f'{left}{_num(self.lower)}, {_num(self.le)}]'
+        right = ')' if self.lt is not None else ']'
+        return f'{left}{_num(self.lower)}, {_num(self.upper)}{right}'
 
 
 def _num(x: float | None) -> str:
@@ -64,10 +76,11 @@ def _num(x: float | None) -> str:
 
 def param(default: Any = MISSING, unit: str = '', description: str = '', *,
           gt: float | None = None, ge: float | None = None, le: float | None = None,
-          choices: tuple = (), seed: str = '', runtime: bool = True) -> Any:
+          lt: float | None = None, choices: tuple = (), seed: str = '', runtime: bool = True,
+          inf_ok: bool = False) -> Any:
     """Declare one parameter (a dataclass field): default, unit, range, description, seed."""
-    spec = Spec(unit=unit, description=description, seed=seed, gt=gt, ge=ge, le=le,
-                choices=tuple(choices), runtime=runtime)
+    spec = Spec(unit=unit, description=description, seed=seed, gt=gt, ge=ge, le=le, lt=lt,
+                choices=tuple(choices), runtime=runtime, inf_ok=inf_ok)
     return field(default=default, metadata={'spec': spec})
 
 
@@ -120,12 +133,11 @@ def value_problems(name: str, tp: Any, value: Any, spec: Spec) -> list[str]:
         x = float(value)
     except OverflowError:
         return [f'{name} = {value}: {rng}']
-    if not math.isfinite(x):
+    if not math.isfinite(x) and not (spec.inf_ok and x == math.inf):
         return [f'{name} = {value!r}: must be a finite number']
-    lo, hi = spec.lower, spec.le
-    strict = spec.gt is not None
-    if (lo is not None and (value <= lo if strict else value < lo)) or (
-            hi is not None and value > hi):
+    lo, hi = spec.lower, spec.upper
+    if (lo is not None and (value <= lo if spec.gt is not None else value < lo)) or (
+            hi is not None and (value >= hi if spec.lt is not None else value > hi)):
         return [f'{name} = {value:g}: {rng}']
     return []
 
@@ -136,6 +148,20 @@ def field_problems(obj: Any, prefix: str = '') -> list[str]:
     for e in entries(obj, prefix):
         out += value_problems(e.name, e.type, e.value, e.spec)
     return out
+
+
+def first_problem(obj: Any) -> tuple[str, str] | None:
+    """Return ``(field name, reason)`` of the first value of ``obj`` that does not fit, or None.
+
+    Fields whose value is None are optional and not checked.
+    """
+    for e in entries(obj):
+        if e.value is None:
+            continue
+        reasons = value_problems(e.name, e.type, e.value, e.spec)
+        if reasons:
+            return e.name, reasons[0][len(e.name) + 3:]  # without 'name = '
+    return None
 
 
 class Section:
