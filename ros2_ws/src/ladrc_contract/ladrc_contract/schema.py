@@ -65,6 +65,10 @@ class Spec:
             return ' | '.join(str(c) for c in self.choices)
         if self.lower is None and self.upper is None:
             return ''
+        if self.upper is None:  # one-sided (simulator models): '> 0', '>= 0'
+            return f"{'>' if self.gt is not None else '>='} {_num(self.lower)}"
+        if self.lower is None:
+            return f"{'<' if self.lt is not None else '<='} {_num(self.upper)}"
         left = '(' if self.gt is not None else '['
         right = ')' if self.lt is not None else ']'
         return f'{left}{_num(self.lower)}, {_num(self.upper)}{right}'
