@@ -15,7 +15,7 @@ from ladrc_follow.control.eso import (
     euler_is_stable,
     zoh_gains,
 )
-from ladrc_follow.control.ops import ARRAY, SCALAR
+from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
 from reference_forms import NonlinearESO, euler_stability_limit, seed_gains_order1, static_error

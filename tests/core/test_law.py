@@ -9,7 +9,7 @@ from ladrc_follow.control.law import (
     law_order1,
     law_order2,
 )
-from ladrc_follow.control.ops import ARRAY, SCALAR
+from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
 

@@ -12,7 +12,7 @@ from ladrc_follow.control.nonlinear import (
     sinh_fn,
     tanh_fn,
 )
-from ladrc_follow.control.ops import ARRAY, SCALAR
+from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
 from reference_forms import default_tables

@@ -4,7 +4,7 @@ from dataclasses import replace
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from ladrc_follow.control.ops import ARRAY
+from ladrc_contract.ops import ARRAY
 from ladrc_follow.control.pid import (
     SUPPRESS_DEADBAND_MM,
     SUPPRESS_GAIN_SCALE,

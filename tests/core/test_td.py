@@ -2,7 +2,7 @@
 
 import math
 
-from ladrc_follow.control.ops import ARRAY, SCALAR
+from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.control.td import (
     TDA_FIRMWARE,
     TDB_FIRMWARE,

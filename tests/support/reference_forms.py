@@ -29,7 +29,7 @@ from ladrc_follow.control.nonlinear import (
     sinh_fn,
     tanh_fn,
 )
-from ladrc_follow.control.ops import ARRAY, SCALAR
+from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.control.td import (
     SAMPLE_PERIOD_S,
     TDA_FIRMWARE,

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import math
 from typing import Any, Callable, Sequence
 
+from ladrc_contract.ops import SCALAR
 import numpy as np
 
 from ..control.eso import (
@@ -40,7 +41,6 @@ from ..control.eso import (
     fal_alphas,
 )
 from ..control.ladrc import LADRC, tick_constants
-from ..control.ops import SCALAR
 from ..control.params import ControllerParams
 from ..control.pid import FollowPID
 

@@ -31,9 +31,8 @@ from __future__ import annotations
 from math import comb, factorial
 from typing import Sequence
 
+from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
-
-from .ops import ARRAY, SCALAR
 
 
 # ---------------------------------------------------------------- gains and analysis

@@ -15,10 +15,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ladrc_contract.ops import SCALAR
 from ladrc_contract.schema import Section, param
 import numpy as np
-
-from .ops import SCALAR
 
 
 @dataclass(frozen=True)

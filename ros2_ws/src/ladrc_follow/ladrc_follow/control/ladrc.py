@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
+from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 
 from .eso import (
@@ -51,7 +52,6 @@ from .eso import (
 from .kalman import kalman_gated_step
 from .law import apply_limits, form_weights, law_order1, law_order2
 from .nonlinear import LookupTable, fal
-from .ops import ARRAY, SCALAR
 from .params import ControllerParams, check, eso_gains, law_gains
 from .td import td_step_firmware
 

@@ -19,9 +19,8 @@ from dataclasses import dataclass, field
 import math
 from typing import Callable
 
+from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
-
-from .ops import ARRAY, SCALAR
 
 
 def fal(ops, e, alpha, delta):

@@ -36,10 +36,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ladrc_contract.ops import SCALAR
 from ladrc_contract.schema import Section, param
 
 from .law import apply_limits
-from .ops import SCALAR
 
 # Suppression level → (gain scale, deadband). Level 0 = no suppression. The
 # firmware's table is not in the notes; this mapping halves the loop gain at the

@@ -7,9 +7,12 @@ there) and holds the scenario's first target. The world is the headless runner's
 run sees: the sheet's profiles, the thin-sheet plate (one plate per row: the gas push couples
 it to that row's nozzle), the edge (coverage schedule, fringe model and ripple), the sensor's
 gain schedule, noise, lag, quantization and range, the encoder's resolution, the first-order
-axis with its limits and dead time. The axis, plate, sensor and encoder arithmetic is that of
-the models' scalar code written on arrays, operation for operation, so a row equals the scalar
-models bit for bit (``tests/sim/test_batch.py``).
+axis with its limits and dead time. The axis, plate and sensor edge steps are the models' own
+functions (``first_order_step``, ``plate_step``, ``gas_push_mm_s2``, ``edge_gap_mm``) run on
+rows with the array backend (``ladrc_contract.ops``); the sensor's gain, lag, noise,
+quantization and range and the encoder's resolution are written here on arrays, operation for
+operation as ``Sensor.measure`` and ``Encoder.read``; a row equals the scalar models bit for
+bit (``tests/sim/test_batch.py``).
 
 The controller is any object with ``reset(gap_mm, u_prev_mm_s, target_mm, encoder_mm)`` and
 ``step(gap_mm, encoder_mm, target_mm) -> u`` on arrays of N rows (``LADRC.batch``); the
@@ -31,12 +34,13 @@ from pathlib import Path
 import time
 from typing import Any
 
+from ladrc_contract.ops import ARRAY
 import numpy as np
 from scipy.optimize import brentq
 
-from ..models.axis import H_S
-from ..models.sensor import Sensor
-from ..models.sheet import _first_tick
+from ..models.axis import H_S, first_order, first_order_step
+from ..models.sensor import Sensor, edge_gap_mm
+from ..models.sheet import _first_tick, gas_push_mm_s2, plate_step
 from .runner import draw_world, schedule
 from .scenario import Scenario, list_scenarios, load_scenario
 
@@ -164,22 +168,17 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
     cov_l = cov.tolist()
     sheet, sensor = draw_world(sc, n, h_s)  # the runner's world
     base = sheet.base_mm
-    s_gain, s_noise, s_alpha = sensor._gain, sensor._noise, sensor._alpha
+    s_gain, s_noise, s_alpha = sensor.gain.tolist(), sensor.noise_mm.tolist(), sensor.alpha
     s_q, s_rmax, s_rmin = sc.sensor.quant_mm, sc.sensor.range_max_mm, sc.sensor.range_min_mm
-    # the edge model's constants (Sensor.measure)
-    s_gf, s_step, s_inv_step = sensor._gf, sensor._step, sensor._inv_step
-    s_eps, s_cum, s_k_last = np.asarray(sensor._eps), np.asarray(sensor._cum), sensor._k_last
+    # the edge model on rows: its tables as arrays (Sensor.measure indexes lists)
+    edge = sensor.edge._replace(cum=np.asarray(sensor.edge.cum), eps=np.asarray(sensor.edge.eps))
     e_res = sc.encoder.resolution_mm
-    ap = sc.axis
-    a = math.exp(-h_s / ap.t1_s)  # models/axis.py, exact ZOH of b0/(s(T1 s + 1))
-    kv, kxv = (1.0 - a) * ap.b0, ap.t1_s * (1.0 - a)
-    kxu = ap.b0 * (h_s - ap.t1_s * (1.0 - a))
-    u_max, dv_max, half_h = ap.v_max_mm_s / ap.b0, ap.a_max_mm_s2 * h_s, 0.5 * h_s
-    delay = [np.zeros(n_rows) for _ in range(ap.dead_time_ticks)]
+    axis = first_order(sc.axis, h_s)  # models/axis.py, exact ZOH of b0/(s(T1 s + 1))
+    delay = [np.zeros(n_rows) for _ in range(sc.axis.dead_time_ticks)]
     k_delay = 0
     plate = sheet.plate
     if plate is not None:
-        p00, p01, p10, p11, pg0, pg1 = plate.coefficients()
+        plate_c = plate.coefficients()
         p_k, p_g0 = plate.gas_k, plate.gas_g0
         kick_before, gas_l, kick_own = plate_schedule(sc, n, h_s)
     p_y = np.zeros(n_rows)  # the plate of each row (Plate.y_mm, v_mm_s)
@@ -206,10 +205,7 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
         if c >= 1.0:
             r = gap * s_gain[i]
         else:  # the edge model; c >= min_coverage (check_batchable)
-            g = np.where(gap > 0.0, gap, 0.0)
-            k = np.minimum((g * s_inv_step).astype(np.int64), s_k_last)
-            r = (g * (g + s_gf) / (g + c * s_gf) + (1.0 - c)
-                 * (s_cum[k] + s_eps[k] * (g - k * s_step))) * s_gain[i]
+            r = edge_gap_mm(ARRAY, gap, c, edge) * s_gain[i]
         if s_alpha != 0.0:
             r = r if s_y is None else s_alpha * s_y + (1.0 - s_alpha) * r
             s_y = r
@@ -224,19 +220,12 @@ def run_batch(scenario: Scenario | str | Path, controller: Any, n_rows: int, *,
         if delay:  # Axis.step's dead time: the command of dead_time_ticks ago
             u, delay[k_delay] = delay[k_delay], u
             k_delay = k_delay + 1 if k_delay + 1 < len(delay) else 0
-        # Axis.step, first-order model (models/axis.py), on arrays
-        u = np.where(u > u_max, u_max, np.where(u < -u_max, -u_max, np.where(u == u, u, 0.0)))
-        v1 = a * v + kv * u
-        dv = v1 - v
-        inside = (-dv_max <= dv) & (dv <= dv_max)
-        v_lim = v + np.where(dv > 0.0, dv_max, -dv_max)
-        x = np.where(inside, x + kxv * v + kxu * u, x + half_h * (v + v_lim))
-        v = np.where(inside, v1, v_lim)
+        x, v = first_order_step(ARRAY, axis, x, v, u)  # Axis.step (models/axis.py)
         if plate is not None:
             # Plate.step (models/sheet.py): gas push held at this tick's gap, per row
             if kick_own[i] != 0.0:
                 p_v = p_v + kick_own[i]
-            pa = -p_k / (np.where(gap > 0.0, gap, 0.0) + p_g0) if gas_l[i] else 0.0
-            p_y, p_v = p00 * p_y + p01 * p_v + pg0 * pa, p10 * p_y + p11 * p_v + pg1 * pa
+            pa = gas_push_mm_s2(ARRAY, gap, p_k, p_g0) if gas_l[i] else 0.0
+            p_y, p_v = plate_step(plate_c, p_y, p_v, pa)
     wall = time.perf_counter() - wall0
     return BatchResult(np.arange(n) * h_s, r_gap, r_cmd, targets, cov, wall)

@@ -204,8 +204,7 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
     # model methods. tests/sim/test_runner.py checks both give bit-identical series.
     ap = sc.axis
     fast_axis = ap.model == 'first_order' and ap.dead_time_ticks == 0
-    ax_a, ax_kv, ax_kxv, ax_kxu = axis._a, axis._kv, axis._kxv, axis._kxu
-    ax_umax, ax_dvm, ax_hh = axis._u_max, axis._dv_max, axis._half_h
+    ax_a, ax_kv, ax_kxv, ax_kxu, ax_umax, ax_dvm, ax_hh = axis.first_order
     x, v = axis.position_mm, axis.velocity_mm_s
     s_gain, s_noise, s_alpha, s_y = sensor._gain, sensor._noise, sensor._alpha, sensor._y
     s_q, s_rmax, s_rmin = sc.sensor.quant_mm, sc.sensor.range_max_mm, sc.sensor.range_min_mm

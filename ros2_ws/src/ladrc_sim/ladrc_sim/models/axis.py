@@ -42,8 +42,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 from math import isnan
-from typing import Any
+from typing import Any, NamedTuple
 
+from ladrc_contract.ops import SCALAR
 from ladrc_contract.schema import first_problem, param
 import numpy as np
 from scipy import signal
@@ -97,6 +98,45 @@ class AxisParams:
         check_fields(self)
 
 
+class FirstOrder(NamedTuple):
+    """The first-order axis at tick ``h``: exact ZOH of b0/(s(T1 s + 1)) (notes §1.1), limits."""
+
+    a: float       # exp(-h/T1)
+    kv: float      # (1 - a) b0: velocity per command
+    kxv: float     # T1 (1 - a): position per velocity
+    kxu: float     # b0 (h - T1 (1 - a)): position per command
+    u_max: float   # the command that reaches v_max
+    dv_max: float  # a_max h: the largest velocity step of a tick
+    half_h: float  # h/2: position over a tick at a constant acceleration
+
+
+def first_order(params: AxisParams, h_s: float) -> FirstOrder:
+    """Return the first-order axis of ``params`` discretised at ``h_s`` (notes §1.1)."""
+    a = math.exp(-h_s / params.t1_s)
+    return FirstOrder(a, (1.0 - a) * params.b0, params.t1_s * (1.0 - a),
+                      params.b0 * (h_s - params.t1_s * (1.0 - a)),
+                      params.v_max_mm_s / params.b0, params.a_max_mm_s2 * h_s, 0.5 * h_s)
+
+
+def first_order_step(ops: Any, c: FirstOrder, x_mm: Any, v_mm_s: Any, u_mm_s: Any
+                     ) -> tuple[Any, Any]:
+    """One tick of the enabled first-order axis, scalar or N rows (``ops``): ``(x, v)`` after.
+
+    The command is clipped to ±u_max (NaN fails every comparison: treated as no command rather
+    than poisoning the state); a velocity step beyond a_max·h is cut to it, the position then
+    moving at that constant acceleration over the tick.
+    """
+    u = ops.where(u_mm_s > c.u_max, c.u_max,
+                  ops.where(u_mm_s < -c.u_max, -c.u_max, ops.where(u_mm_s == u_mm_s, u_mm_s, 0.0)))
+    v1 = c.a * v_mm_s + c.kv * u
+    dv = v1 - v_mm_s
+    inside = (-c.dv_max <= dv) & (dv <= c.dv_max)
+    v_lim = v_mm_s + ops.where(dv > 0.0, c.dv_max, -c.dv_max)
+    return (ops.where(inside, x_mm + c.kxv * v_mm_s + c.kxu * u,
+                      x_mm + c.half_h * (v_mm_s + v_lim)),
+            ops.where(inside, v1, v_lim))
+
+
 class Axis:
     """The simulated Z axis; ``step`` advances one tick of ``h_s``."""
 
@@ -109,15 +149,7 @@ class Axis:
         self.velocity_mm_s = 0.0
         self._identified = params.model == 'identified'
         h = self.h_s
-        a = math.exp(-h / params.t1_s)
-        # notes §1.1, exact ZOH discretisation of b0/(s(T1 s + 1)).
-        self._a = a
-        self._kv = (1.0 - a) * params.b0
-        self._kxv = params.t1_s * (1.0 - a)
-        self._kxu = params.b0 * (h - params.t1_s * (1.0 - a))
-        self._u_max = params.v_max_mm_s / params.b0
-        self._dv_max = params.a_max_mm_s2 * h
-        self._half_h = 0.5 * h
+        self.first_order = first_order(params, h)  # notes §1.1
         self._buf = [0.0] * params.dead_time_ticks
         self._k = 0
         if self._identified:
@@ -147,22 +179,13 @@ class Axis:
         if self._identified:
             return self._step_identified(u if not isnan(u) else 0.0, enabled and not fault)
         v = self.velocity_mm_s
-        dv_max = self._dv_max
         if enabled and not fault:
-            u_max = self._u_max
-            # NaN fails every comparison: treat it as no command rather than poison the state.
-            u = u_max if u > u_max else (-u_max if u < -u_max else (u if not isnan(u) else 0.0))
-            v1 = self._a * v + self._kv * u
-            dv = v1 - v
-            if -dv_max <= dv <= dv_max:
-                x1 = self.position_mm + self._kxv * v + self._kxu * u
-            else:
-                v1 = v + (dv_max if dv > 0.0 else -dv_max)
-                x1 = self.position_mm + self._half_h * (v + v1)
+            x1, v1 = first_order_step(SCALAR, self.first_order, self.position_mm, v, u)
         else:
             # a disabled drive brakes to a stop at a_max (module docstring).
+            dv_max = self.first_order.dv_max
             v1 = v - dv_max if v > dv_max else (v + dv_max if v < -dv_max else 0.0)
-            x1 = self.position_mm + self._half_h * (v + v1)
+            x1 = self.position_mm + self.first_order.half_h * (v + v1)
         self.position_mm = x1
         self.velocity_mm_s = v1
         return x1, v1

@@ -43,7 +43,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+from typing import Any, NamedTuple
 
+from ladrc_contract.ops import SCALAR
 from ladrc_contract.schema import param
 import numpy as np
 from scipy import signal
@@ -123,6 +125,25 @@ def band_limited_noise(rng: np.random.Generator, n: int, std: float, cutoff_hz: 
     return std * white
 
 
+class EdgeModel(NamedTuple):
+    """The edge model's constants (module docstring): fringe and the ripple's knots."""
+
+    fringe_mm: float
+    step_mm: float       # knot spacing of the ripple
+    inv_step: float      # 1 / step_mm
+    k_last: int          # the last knot
+    cum: Any             # the ripple integrated at the knots (a list, or an array for rows)
+    eps: Any             # the ripple's slope error per knot
+
+
+def edge_gap_mm(ops: Any, gap_mm: Any, coverage: float, e: EdgeModel) -> Any:
+    """Edge-model reading (before gain, lag, noise) at ``coverage`` < 1, scalar or rows."""
+    g = ops.where(gap_mm > 0.0, gap_mm, 0.0)
+    k = ops.floor_index(g * e.inv_step, e.k_last)
+    return (g * (g + e.fringe_mm) / (g + coverage * e.fringe_mm) + (1.0 - coverage)
+            * (e.cum[k] + e.eps[k] * (g - k * e.step_mm)))
+
+
 class Sensor:
     """Capacitive sensor over a run of ``n_ticks``; ``measure(i, gap, coverage)`` per tick.
 
@@ -150,12 +171,16 @@ class Sensor:
         cum = np.concatenate(([0.0], np.cumsum(eps) * params.edge_ripple_step_mm))
         self._eps = eps.tolist()
         self._cum = cum.tolist()
+        self.noise_mm = np.asarray(self._noise)  # the noise of every tick (batch rows)
         self._alpha = math.exp(-h_s / params.lag_s) if params.lag_s > 0.0 else 0.0
         self._y: float | None = None
         self._gf = params.edge_fringe_mm
         self._step = params.edge_ripple_step_mm
         self._inv_step = 1.0 / params.edge_ripple_step_mm
         self._k_last = len(self._eps) - 1
+        self.edge = EdgeModel(self._gf, self._step, self._inv_step, self._k_last, self._cum,
+                              self._eps)
+        self.alpha = self._alpha  # the lag's filter coefficient per tick (0: no lag)
         self._min_cov = params.min_coverage
         self._rmax = params.range_max_mm
         self._rmin = params.range_min_mm
@@ -165,11 +190,7 @@ class Sensor:
         """Edge-model reading (before gain, lag, noise) for a true gap and coverage."""
         if coverage >= 1.0:
             return gap_mm
-        g = gap_mm if gap_mm > 0.0 else 0.0
-        gf = self.params.edge_fringe_mm
-        r = g * (g + gf) / (g + coverage * gf)
-        k = min(int(g * self._inv_step), self._k_last)
-        return r + (1.0 - coverage) * (self._cum[k] + self._eps[k] * (g - k * self._step))
+        return edge_gap_mm(SCALAR, gap_mm, coverage, self.edge)
 
     def measure(self, i: int, gap_mm: float, coverage: float) -> tuple[float, bool, bool]:
         """Return ``(reading_mm, valid, collision)`` at tick ``i`` for the true gap."""
@@ -180,14 +201,7 @@ class Sensor:
             self._y = None
             return self._rmax, False, collision
         else:
-            # edge model (module docstring), inlined from apparent_gap_mm for speed.
-            g = gap_mm if gap_mm > 0.0 else 0.0
-            gf = self._gf
-            k = int(g * self._inv_step)
-            if k > self._k_last:
-                k = self._k_last
-            r = (g * (g + gf) / (g + coverage * gf) + (1.0 - coverage)
-                 * (self._cum[k] + self._eps[k] * (g - k * self._step))) * self._gain[i]
+            r = edge_gap_mm(SCALAR, gap_mm, coverage, self.edge) * self._gain[i]
         alpha = self._alpha
         if alpha != 0.0:
             y = self._y

@@ -36,7 +36,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+from typing import Any
 
+from ladrc_contract.ops import SCALAR
 from ladrc_contract.schema import param
 import numpy as np
 from scipy import linalg, signal
@@ -237,6 +239,22 @@ class PlateParams:
         check_fields(self)
 
 
+def gas_push_mm_s2(ops: Any, gap_mm: Any, gas_k_mm2_s2: float, gas_g0_mm: float) -> Any:
+    """Return the gas's push as the plate's acceleration (down: negative), scalar or rows.
+
+    It falls with the gap, clamped at contact: ``-k / (max(gap, 0) + g0)``.
+    """
+    return -gas_k_mm2_s2 / (ops.where(gap_mm > 0.0, gap_mm, 0.0) + gas_g0_mm)
+
+
+def plate_step(c: tuple[float, float, float, float, float, float], y_mm: Any, v_mm_s: Any,
+               push_mm_s2: Any) -> tuple[Any, Any]:
+    """One tick of the plate, exact ZOH with the push held (``c``: Plate.coefficients())."""
+    p00, p01, p10, p11, g0, g1 = c
+    return (p00 * y_mm + p01 * v_mm_s + g0 * push_mm_s2,
+            p10 * y_mm + p11 * v_mm_s + g1 * push_mm_s2)
+
+
 class Plate:
     """Mass-spring-damper sheet pushed by the gas; ``step(gap_mm)`` advances one tick."""
 
@@ -290,13 +308,10 @@ class Plate:
         if k == self.i_kick:
             self.v_mm_s += self.params.kick_velocity_mm_s
         # push held over the tick (ZOH), gap clamped at contact (see push_mm_s2).
-        a = (-self.gas_k / ((gap_mm if gap_mm > 0.0 else 0.0) + self.gas_g0)
-             if self.gas_on else 0.0)
-        y, v = self.y_mm, self.v_mm_s
-        self.y_mm = y1 = self._p00 * y + self._p01 * v + self._g0 * a
-        self.v_mm_s = self._p10 * y + self._p11 * v + self._g1 * a
+        a = gas_push_mm_s2(SCALAR, gap_mm, self.gas_k, self.gas_g0) if self.gas_on else 0.0
+        self.y_mm, self.v_mm_s = plate_step(self.coefficients(), self.y_mm, self.v_mm_s, a)
         self.k = k + 1
-        return y1
+        return self.y_mm
 
 
 def _first_tick(t_s: float, h_s: float) -> int:

@@ -32,12 +32,13 @@ from dataclasses import replace
 import math
 from typing import Any, Callable, NamedTuple
 
+from ladrc_contract.ops import SCALAR
+
 from ..edge import EDGE, FALLING, HOLD, VERIFY, EdgeGuard
 from ..follow_params import FollowParams
 from ..interp import Interpolator, InterpParams
 from ..kalman import kalman_gated_step
 from ..ladrc import LADRC
-from ..ops import SCALAR
 from ..params import ControllerParams, check
 from ..pid import FollowPID
 from ..target_wave import TargetWave

@@ -1,7 +1,9 @@
 """Scalar and array arithmetic backends, so each algorithm is written once.
 
-Every step function of the control core is written with plain arithmetic
-operators plus the few functions below, taken from an ``ops`` argument. With
+Every step function of the control core, and the simulator models' steps that the batch
+closed loop runs on rows, is written with plain arithmetic operators plus the few functions
+below, taken from an ``ops`` argument (here, in the contract, because the simulator may not
+import the controller). With
 :data:`SCALAR` the same code runs on Python floats (fast for one controller per
 2 kHz tick); with :data:`ARRAY` it runs on numpy arrays (N parameter sets at
 once for sweeps). IEEE-754 ``+ - * /`` and ``sqrt`` are correctly rounded in
@@ -39,6 +41,12 @@ class ScalarOps:
         return float(x > 0.0) - float(x < 0.0)
 
     @staticmethod
+    def floor_index(x: float, last: int) -> int:
+        """``int(x)`` (x >= 0: its floor) capped at ``last``: an index into a table."""
+        k = int(x)
+        return last if k > last else k
+
+    @staticmethod
     def power(x: float, y: float) -> float:
         """``x ** y`` for ``x >= 0``."""
         return x ** y
@@ -62,6 +70,11 @@ class ArrayOps:
     minimum = staticmethod(np.minimum)
     maximum = staticmethod(np.maximum)
     sign = staticmethod(np.sign)
+
+    @staticmethod
+    def floor_index(x: np.ndarray, last: int) -> np.ndarray:
+        """Return the same on rows: truncated to int64 (x >= 0: the floor), capped at ``last``."""
+        return np.minimum(x.astype(np.int64), last)
 
     @staticmethod
     def power(x: np.ndarray, y) -> np.ndarray:
