@@ -23,9 +23,9 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'ros2_ws/src/ladrc_follow'))
+from ladrc_contract.ops import SCALAR  # noqa: E402
 from ladrc_follow.control.eso import bandwidth_gains  # noqa: E402
 from ladrc_follow.control.nonlinear import fal  # noqa: E402
-from ladrc_contract.ops import SCALAR  # noqa: E402
 
 B = 4.0
 LESO_BETAS = bandwidth_gains(3, 100.0)                 # 400, 6e4, 4e6, 1e8 (eq. 36)

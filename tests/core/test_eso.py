@@ -2,6 +2,7 @@
 
 from math import comb, factorial
 
+from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.analysis.observers import LinearESO
 from ladrc_follow.control.eso import (
     bandwidth_gains,
@@ -15,7 +16,6 @@ from ladrc_follow.control.eso import (
     euler_is_stable,
     zoh_gains,
 )
-from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
 from reference_forms import NonlinearESO, euler_stability_limit, seed_gains_order1, static_error

@@ -2,8 +2,8 @@
 
 import math
 
-from ladrc_follow.control.kalman import KalmanParams
 from ladrc_contract.ops import ARRAY, SCALAR
+from ladrc_follow.control.kalman import KalmanParams
 import numpy as np
 import pytest
 from reference_forms import HeightKalman, kalman_step, steady_state_gain

@@ -2,6 +2,7 @@
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.control.law import (
     apply_limits,
     form_weights,
@@ -9,7 +10,6 @@ from ladrc_follow.control.law import (
     law_order1,
     law_order2,
 )
-from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
 

@@ -2,6 +2,7 @@
 
 import math
 
+from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.control.nonlinear import (
     LookupTable,
     asinh_fn,
@@ -12,7 +13,6 @@ from ladrc_follow.control.nonlinear import (
     sinh_fn,
     tanh_fn,
 )
-from ladrc_contract.ops import ARRAY, SCALAR
 import numpy as np
 import pytest
 from reference_forms import default_tables

@@ -12,6 +12,7 @@ import math
 from math import comb
 from typing import Sequence
 
+from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.control.eso import (
     check_betas,
     check_order,
@@ -29,7 +30,6 @@ from ladrc_follow.control.nonlinear import (
     sinh_fn,
     tanh_fn,
 )
-from ladrc_contract.ops import ARRAY, SCALAR
 from ladrc_follow.control.td import (
     SAMPLE_PERIOD_S,
     TDA_FIRMWARE,
