@@ -46,8 +46,8 @@ STAMP_TOLERANCE_S = 0.01  # the product's default (the node's stamp_tolerance_s)
 # largest (100 ms), beyond any stall, so that what it asserts is the loop's period (the sets'
 # builds, BUILD_MIN_S), not whether a stall of the machine happened to trip a limit. 25 ms (two
 # STALL_MAX_S) was not enough in a loaded fresh-clone run (2026-12-03): one tick period of 27.8
-# ms with no set being built, the FIFO loop preempted (kernel 6.18's fair server runs starved
-# normal tasks up to 50 ms per second over real-time ones).
+# ms with no set being built, the FIFO loop preempted (likely kernel 6.18's fair server, which
+# runs starved normal tasks up to 50 ms per second over real-time ones; not verified).
 RT_TIMEOUT_S = 0.1
 BUILD_MIN_S = 0.010  # the shortest hold of one set built on the loop (bench/repro/RESULTS.md)
 # A bound on a hang, not on speed: lock step is slower on a loaded machine, never different.
