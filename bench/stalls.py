@@ -205,9 +205,10 @@ def percentiles_ms(x_ns: list[int] | array) -> dict[str, float]:
 
 def worker(fifo: bool, seconds: float) -> dict:
     """Run the loop for ``seconds`` (after a warm-up); return its figures."""
+    from ladrc_contract import qos
     from ladrc_contract.loop_io import LoopNode
+    from ladrc_contract.qos import to_rclpy
     from ladrc_contract.realtime import apply_realtime
-    from ladrc_follow.node import qos
     import rclpy
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Float64
@@ -215,8 +216,8 @@ def worker(fifo: bool, seconds: float) -> dict:
     context = rclpy.Context()
     rclpy.init(context=context)
     node = LoopNode('stalls_loop', context=context)
-    pub = node.create_publisher(Float64, 'stalls/tick', qos.HIGH_RATE)
-    reader = node.create_loop_reader(Float64, 'stalls/input', qos.CONTROL_INPUT)
+    pub = node.create_publisher(Float64, 'stalls/tick', to_rclpy(qos.HIGH_RATE))
+    reader = node.create_loop_reader(Float64, 'stalls/input', to_rclpy(qos.CONTROL_INPUT))
     applied, warnings = apply_realtime(50 if fifo else 0, [], True)
     tid = threading.get_native_id()
     policy = os.sched_getscheduler(0)

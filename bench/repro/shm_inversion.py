@@ -51,14 +51,15 @@ def publisher(seconds: float) -> dict:
     """Run the FIFO loop; return lateness and publish durations."""
     import gc
 
+    from ladrc_contract import qos
+    from ladrc_contract.qos import to_rclpy
     from ladrc_contract.realtime import apply_realtime
-    from ladrc_follow.node import qos
     import rclpy
     from rclpy.experimental import EventsExecutor
     from std_msgs.msg import UInt8MultiArray
     rclpy.init()
     node = rclpy.create_node('inversion_pub')
-    pub = node.create_publisher(UInt8MultiArray, 'inversion/data', qos.HIGH_RATE)
+    pub = node.create_publisher(UInt8MultiArray, 'inversion/data', to_rclpy(qos.HIGH_RATE))
     executor = EventsExecutor()
     executor.add_node(node)
     applied, warnings = apply_realtime(50, [], True)

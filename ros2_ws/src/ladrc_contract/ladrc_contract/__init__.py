@@ -5,6 +5,8 @@
   follow services table;
 * :mod:`.tick`: ``TickInput``, what one tick of the controller takes;
 * :mod:`.schema`: the one declaration of a parameter (controller and simulator alike);
+* :mod:`.ops`: scalar and array arithmetic, so each step function (controller and simulator
+  models) is written once and runs on floats or on rows;
 * :mod:`.cdr`: pre-serialized CDR of one message type, both ways (publish bytes, parse bytes);
 * :mod:`.loop_io`: a loop node's readers, taken from straight by its loop thread, and the wait
   for a new sample; :mod:`.service_thread`: an executor on a thread of its own;

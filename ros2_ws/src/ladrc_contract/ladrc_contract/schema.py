@@ -9,7 +9,8 @@ is a field of one of the section dataclasses (``TDParams``, ``ESOParams``, …, 
                             gt=0.0, le=5000.0, seed='notes §3.3')
 
 The declaration holds the type (the annotation), the default, the unit, the valid range
-(finite lower and upper bounds for every number), the description with the seed section it
+(finite lower and upper bounds for every controller number; the simulator's models also
+declare one-sided ranges and +inf for "never"), the description with the seed section it
 comes from, and whether it may change while the node runs. Everything else derives from it:
 
 * :func:`entries`: the flat list of dotted names (``eso.w0_rad_s``), what the node declares
@@ -113,7 +114,8 @@ def entries(obj: Any, prefix: str = '') -> Iterator[Entry]:
 def value_problems(name: str, tp: Any, value: Any, spec: Spec) -> list[str]:
     """Reasons why one value does not fit its declaration (empty when it does)."""
     unit = f' {spec.unit}' if spec.unit and spec.unit != '1' else ''
-    rng = f'outside its range {spec.range_text()}{unit} ({spec.description})'
+    why = f' ({spec.description})' if spec.description else ''
+    rng = f'outside its range {spec.range_text()}{unit}{why}'
     if spec.choices:
         if value not in spec.choices:
             return [f'{name} = {value!r}: must be one of {", ".join(map(repr, spec.choices))}']

@@ -73,13 +73,14 @@ def descriptor(entry: Entry) -> ParameterDescriptor:
     desc.type = _ROS_TYPE.get(entry.type, ParameterType.PARAMETER_DOUBLE_ARRAY)
     if s.range_text():
         desc.additional_constraints = ('one of ' if s.choices else 'range ') + s.range_text()
-    if s.choices or s.lower is None or s.le is None:
+    if s.choices or s.lower is None or s.upper is None:
         return desc
     if entry.type is int:
-        desc.integer_range = [IntegerRange(from_value=int(s.lower), to_value=int(s.le), step=1)]
+        desc.integer_range = [IntegerRange(from_value=int(s.lower), to_value=int(s.upper),
+                                           step=1)]
     elif entry.type is float:
         desc.floating_point_range = [FloatingPointRange(from_value=float(s.lower),
-                                                        to_value=float(s.le), step=0.0)]
+                                                        to_value=float(s.upper), step=0.0)]
     return desc
 
 

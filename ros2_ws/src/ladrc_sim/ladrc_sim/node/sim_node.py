@@ -113,7 +113,7 @@ class SimNode(LoopNode):
         # raw_only: publish the oscillator frequency only (gap_mm NaN), as a driver that
         # leaves the raw -> gap table to the controller (docs/calibration.md)
         self.declare_parameter('raw_only', False)
-        # real-time settings of the loop, as the follow node's (node/realtime.py)
+        # real-time settings of the loop, as the follow node's (ladrc_contract/realtime.py)
         self.declare_parameter('thread_priority', 50)
         self.declare_parameter('cpu', -1)
         self.declare_parameter('lock_memory', True)

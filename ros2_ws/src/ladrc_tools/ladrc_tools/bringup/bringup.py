@@ -70,7 +70,7 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
         specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder', parameters=rec))
     # The product's defaults (stale input 10 ms, drive watchdog 5 ms) in simulated runs too:
     # robustness against a loaded machine comes from the loop's real-time settings
-    # (SCHED_FIFO, locked memory: node/realtime.py), not from wider timeouts.
+    # (SCHED_FIFO, locked memory: ladrc_contract/realtime.py), not from wider timeouts.
     # No CPU pinning: on this 2-core class, pinning the two loops to a CPU each starved the
     # simulator's publishing under load (docs/safety.md).
     specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',

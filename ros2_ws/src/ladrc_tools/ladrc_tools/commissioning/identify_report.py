@@ -79,7 +79,7 @@ def identify_bag(path: str | Path, flat_window_s: tuple[float, float] | None = N
     sensor, note = None, ''
     if SENSOR_TOPIC in cols:
         t_ref = float(np.min(fb['stamp_s']))
-        # the nozzle position over the axis fit's window (identify.position_estimate)
+        # the nozzle position over the axis fit's window (identify_sensor.position_estimate)
         pos = {'stamp_s': axis.series.t_s, 'position_mm': position_estimate(axis)}
         t, r, y, valid, h = sensor_series(cols[SENSOR_TOPIC], pos, flat_window_s, t_ref)
         window = flat_window_s or (float(t[0] - t_ref), float(t[-1] - t_ref))
