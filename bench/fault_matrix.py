@@ -60,6 +60,7 @@ from ladrc_tools.bringup.bringup import loopback_settings  # noqa: E402
 os.environ.update(loopback_settings(os.environ))
 
 from ladrc_contract.schema import entries  # noqa: E402
+from ladrc_contract.tick import CncInput  # noqa: E402
 from ladrc_follow.control.follow import FollowController  # noqa: E402
 from ladrc_follow.control.params import (  # noqa: E402
     ControllerParams,
@@ -254,6 +255,73 @@ def parameter_fuzz(rng: random.Random) -> tuple[int, int, int]:
     row('parameter fuzz (headless)', invalid_tried=tried, invalid_accepted=accepted,
         valid_tried=300, crashes=crashes)
     return tried, accepted, crashes
+
+
+class CncFuzz(Corrupt):
+    """A CNC gone wrong: garbage motion samples every tick, random (often invalid) commands."""
+
+    def __init__(self, ctrl: FollowController, rng: random.Random) -> None:
+        super().__init__(ctrl, None)
+        self.rng = rng
+        self.seq = 0
+        self.tried = self.accepted = 0
+        self.exceptions = 0
+
+    def _value(self) -> float:
+        r = self.rng
+        return r.choice([math.nan, math.inf, -math.inf, -5.0, 0.0, 1e300, r.uniform(0, 200)])
+
+    def step(self, tick) -> float:
+        """Step on a fuzzed CNC sample; issue a random CNC command now and then."""
+        r, t = self.rng, tick.t_s
+        self.seq += 1
+        if r.random() < 0.9:  # mostly a plausible CNC, cutting with corners and edges ahead
+            f = r.uniform(0.0, 200.0)
+            return self._step(tick, CncInput(self.seq, t, r.choice([1, 2, 2, 2, 3]),
+                                             r.random() < 0.9, 1, f, f * r.uniform(0.3, 1.0),
+                                             r.uniform(0, 50), r.choice([math.inf, 3.0, 30.0])))
+        cnc = CncInput(r.choice([self.seq, 0, 2 ** 63]),
+                       r.choice([t, t, t - 1.0, t + 1.0, math.nan, -math.inf]),
+                       r.randint(0, 5), r.random() < 0.5, r.randint(0, 3), self._value(),
+                       self._value(), self._value(), self._value())
+        return self._step(tick, cnc)
+
+    def _step(self, tick, cnc: CncInput) -> float:
+        r = self.rng
+        if r.random() < 0.002:
+            self.tried += 1
+            name = r.choice(['pierce', 'lift', 'hold'])
+            args = {'pierce': dict(heights_mm=[self._value() for _ in range(r.randint(0, 3))],
+                                   dwell_s=[r.uniform(-1, 2) for _ in range(r.randint(0, 3))],
+                                   cut_gap_mm=self._value() % 3, thc_delay_s=r.uniform(-1, 1)),
+                    'lift': dict(mode=r.randint(-1, 2), value_mm=self._value(),
+                                 velocity_mm_s=self._value()),
+                    'hold': dict(hold=r.choice([True, False, 'x']),
+                                 at_next_segment=r.choice([True, False]),
+                                 reason=r.choice(['', 'fuzz']))}[name]
+            self.accepted += self.c.command(name, **args)[0]
+        u = self.c.step(tick, cnc)
+        if 'exception' in self.c.fault_reason:
+            self.exceptions += 1
+        return u
+
+
+def cnc_fuzz(rng: random.Random) -> None:
+    """Run the row of the CNC interface fed garbage while following a sine sheet."""
+    d = dict(name='cnc_fuzz', duration_s=8.0, seed=3, initial_gap_mm=3.0,
+             sensor={'noise_std_mm': 0.005, 'quant_mm': 0.001},
+             sheet={'profiles': [{'kind': 'sine', 'amp_mm': 0.3, 'freq_hz': 1.0}]},
+             timeline=[{'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1.0}])
+    c = FollowController(ControllerParams())
+    fz = CncFuzz(c, rng)
+    res = runner.run(scenario_from_dict(d), fz, record_internals=True)
+    gap = np.asarray(res.true_gap_mm)
+    u = np.asarray(res.command_mm_s)
+    row('CNC interface fuzz (headless)', contact=bool(gap.min() <= 0.0),
+        min_true_gap_mm=float(gap.min()), commands_tried=fz.tried,
+        commands_accepted=fz.accepted, exception_ticks=fz.exceptions,
+        ladrc_ticks=int(np.sum(np.asarray(res.internals['state']) == 4)),
+        nonfinite_commands=int(np.sum(~np.isfinite(u))))
 
 
 # ---------------------------------------------------------------------------- live rows
@@ -730,6 +798,7 @@ def main() -> None:
     t0 = time.monotonic()
     headless_rows()
     tried, accepted, crashes = parameter_fuzz(rng)
+    cnc_fuzz(rng)
     live = {} if a.skip_live else live_rows(a.load_s, a.clients_s)
     live_tried, live_accepted = live.get('live_params', (0, 0))
     summary = {

@@ -194,7 +194,9 @@ def test_event_fields_map_to_the_command_arguments():
     for kind, name in KIND_NAMES.items():
         if name == 'parameters':
             continue
-        got, kwargs = event_command(replace(ev, kind=kind))
+        text = ('{"heights_mm": [3.0], "dwell_s": [0.2], "thc_delay_s": 0.1}'
+                if name == 'pierce' else ev.text)  # the CNC's pierce carries its stages
+        got, kwargs = event_command(replace(ev, kind=kind, text=text))
         assert got == name
         assert set(kwargs) == set(COMMANDS[name])
     assert event_command(replace(ev, kind=6))[1] == {

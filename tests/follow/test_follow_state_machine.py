@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ladrc_follow.control.edge import EdgeParams
 from ladrc_follow.control.follow import (
+    ANSWER_KEYS,
     INTERNALS_KEYS,
     FollowController,
     FollowParams,
@@ -498,7 +499,7 @@ def test_internals_keys_are_follow_status_fields(following_ladrc):
     fields_ = _msg_fields(FOLLOW_STATUS_MSG)
     for _ in range(3):
         d = c.internals()
-        assert tuple(d) == INTERNALS_KEYS and set(d) <= fields_
+        assert tuple(d) == INTERNALS_KEYS + ANSWER_KEYS and set(d) <= fields_
         assert isinstance(d['state'], int) and isinstance(d['limit_flags'], int)
         assert isinstance(d['followed'], bool) and isinstance(d['fault_reason'], str)
         assert d['velocity_mm_s'] == c.velocity_mm_s

@@ -18,12 +18,13 @@ import pytest
 pytest.importorskip('ladrc_msgs', reason='needs the built workspace (make test)')
 from ladrc_msgs.msg import (  # noqa: E402
     CapacitiveHeight,
+    CncMotion,
     FollowEvent,
     FollowStatus,
     SimTruth,
     VelocityCommand,
 )
-from ladrc_msgs.srv import ResetFault, StartFollow, StopFollow  # noqa: E402
+from ladrc_msgs.srv import Hold, Pierce, ResetFault, StartFollow, StopFollow  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import GetParameters, SetParameters  # noqa: E402
 from rosnodes import LATCHED, RELIABLE, NodeProcesses, Probe  # noqa: E402
@@ -186,6 +187,51 @@ def test_follow_ladrc_parameters_and_stop(axis):
     assert err.size == 2000 * 2
     assert err.max() < 0.02, (err.max(), [s for s in seen if s != S.STATE_LADRC])
 
+
+
+CNC_STATUS = ['tick', 'state', 'substate', 'hold_reason', 'in_position', 'ready_to_move',
+              'cnc_seq', 'gap_mm', 'feed_hold_request']
+
+
+def test_the_cnc_interface_over_dds_pierce_hold_and_motion(axis):
+    """Pierce from IDLE, a commanded hold and a CNC motion sample, through the node's services."""
+    nodes, probe = axis
+    status = probe.record(FollowStatus, 'follow/status', fields=CNC_STATUS, qos=RELIABLE)
+    events = probe.record(FollowEvent, 'follow/events', qos=LATCHED)
+    assert probe.spin_until(lambda: len(status) > 200 and status[-1][1] == S.STATE_IDLE,
+                            HANG_S), nodes.log('follow') + nodes.log('sim')
+    bad = probe.call(Pierce, 'follow/pierce', Pierce.Request(
+        heights_mm=[], dwell_s=[], cut_gap_mm=1.0, thc_delay_s=0.0))
+    assert not bad.accepted and 'stages' in bad.message
+    res = probe.call(Pierce, 'follow/pierce', Pierce.Request(
+        heights_mm=[2.0], dwell_s=[0.1], cut_gap_mm=1.0, thc_delay_s=0.05))
+    assert res.accepted, res.message
+    assert probe.spin_until(lambda: status[-1][1] == S.STATE_LADRC and status[-1][2] == 0
+                            and status[-1][4], HANG_S), status[-1]
+    assert any(e.kind == FollowEvent.PIERCE and e.value_mm == 1.0 for e in events)
+    rows = list(status)
+    dwell = [r for r in rows if 'dwell' in r[3]]
+    thc = [r for r in rows if r[2] == S.SUB_THC_DELAY]
+    assert abs(len(dwell) - 200) <= 2 and abs(len(thc) - 100) <= 2, (len(dwell), len(thc))
+    assert all(abs(r[7] - 2.0) < 0.25 and r[4] for r in dwell[:-1])
+    assert all(abs(r[7] - 1.0) < 0.1 for r in thc)
+    assert not any(r[5] for r in rows if r[2] == S.SUB_PIERCE and 'dwell' in r[3])
+    # a commanded hold, and its release
+    ok = probe.call(Hold, 'follow/hold', Hold.Request(hold=True, at_next_segment=False,
+                                                      reason='test hold'))
+    assert ok.accepted, ok.message
+    assert probe.spin_until(lambda: status[-1][2] == S.SUB_HOLD, HANG_S), status[-1]
+    assert status[-1][3] == 'test hold'
+    assert probe.call(Hold, 'follow/hold', Hold.Request(hold=False)).accepted
+    assert probe.spin_until(lambda: status[-1][2] == S.SUB_NONE, HANG_S), status[-1]
+    # a CNC motion sample reaches the tick; stamped 0, it is stale at once: held, with why
+    probe.publish(CncMotion, 'cnc/motion', {'seq': 7, 'segment': CncMotion.SEGMENT_CUT,
+                                             'beam_on': True, 'commanded_feed_mm_s': 100.0,
+                                             'actual_feed_mm_s': 100.0,
+                                             'edge_ahead_mm': math.inf}, qos=10)
+    assert probe.spin_until(lambda: status[-1][6] == 7 and status[-1][2] == S.SUB_HOLD,
+                            HANG_S), status[-1]
+    assert 'stale' in status[-1][3] and status[-1][1] == S.STATE_LADRC
 
 @pytest.mark.realtime
 def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):

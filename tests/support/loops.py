@@ -11,9 +11,11 @@ H = 0.0005
 class Loop:
     """A minimal closed loop (sim axis model, ideal sensor) whose inputs a hook can corrupt."""
 
-    def __init__(self, ctrl: FollowController, gap0_mm: float = 1.0, sheet=None) -> None:
+    def __init__(self, ctrl: FollowController, gap0_mm: float = 1.0, sheet=None,
+                 cnc=None) -> None:
         self.c = ctrl
         self.sheet = sheet or (lambda t: 0.0)
+        self.cnc = cnc  # cnc(i, t) -> the CNC's motion sample of tick i (CncInput) or None
         self.axis = Axis(AxisParams(), self.sheet(0.0) + gap0_mm, H)
         self.i = 0
         self.u: list[float] = []
@@ -30,7 +32,7 @@ class Loop:
                      encoder_stamp_s=t, drive_enabled=True, drive_fault=False, gap_status=0)
             if hook is not None:
                 hook(self.i, d)
-            u = self.c.step(TickInput(**d))
+            u = self.c.step(TickInput(**d), None if self.cnc is None else self.cnc(self.i, t))
             self.u.append(u)
             self.states.append(int(self.c.state))
             self.gap.append(gap)

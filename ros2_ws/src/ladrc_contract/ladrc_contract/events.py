@@ -40,6 +40,9 @@ COMMAND_KIND: dict[str, EventKind] = {
     'gradient_follow': EventKind.GRADIENT_FOLLOW,
     'reset_fault': EventKind.RESET_FAULT,
     'target_wave': EventKind.TARGET_WAVE,
+    'pierce': EventKind.PIERCE,
+    'lift': EventKind.LIFT,
+    'hold': EventKind.HOLD,
 }
 """The follow commands a ``FollowEvent`` records (``PARAMETERS`` is a parameter set)."""
 
@@ -60,6 +63,16 @@ def encode(name: str, args: dict[str, Any]) -> EventFields:
     if name == 'target_wave':
         return EventFields(kind, float(a['amp_mm']),
                            text=json.dumps({k: a[k] for k in WAVE_ARGS}))
+    if name == 'pierce':
+        return EventFields(kind, float(a['cut_gap_mm']), text=json.dumps(
+            {'heights_mm': list(a['heights_mm']), 'dwell_s': list(a['dwell_s']),
+             'thc_delay_s': a['thc_delay_s']}))
+    if name == 'lift':
+        return EventFields(kind, float(a['value_mm']), velocity_mm_s=float(a['velocity_mm_s']),
+                           flag=bool(a['mode']))
+    if name == 'hold':
+        return EventFields(kind, delay_s=-1.0 if a['at_next_segment'] else 0.0,
+                           flag=bool(a['hold']), text=a['reason'])
     return EventFields(kind)  # stop_follow, reset_fault
 
 
@@ -83,6 +96,15 @@ def decode(ev: Any) -> tuple[str, dict[str, Any]]:
                                    'accel_mm_s2': ev.accel_mm_s2}
     if k == EventKind.TARGET_WAVE:
         return 'target_wave', {'amp_mm': ev.value_mm, **json.loads(ev.text)}
+    if k == EventKind.PIERCE:
+        d = json.loads(ev.text)
+        return 'pierce', {'heights_mm': tuple(d['heights_mm']), 'dwell_s': tuple(d['dwell_s']),
+                          'cut_gap_mm': ev.value_mm, 'thc_delay_s': d['thc_delay_s']}
+    if k == EventKind.LIFT:
+        return 'lift', {'mode': int(ev.flag), 'value_mm': ev.value_mm,
+                        'velocity_mm_s': ev.velocity_mm_s}
+    if k == EventKind.HOLD:
+        return 'hold', {'hold': ev.flag, 'at_next_segment': ev.delay_s < 0.0, 'reason': ev.text}
     if k in (EventKind.STOP_FOLLOW, EventKind.RESET_FAULT):
         return ('stop_follow' if k == EventKind.STOP_FOLLOW else 'reset_fault'), {}
     raise ValueError(f'follow/events kind {k} is not a follow command')

@@ -27,6 +27,14 @@ FOLLOW_SERVICES: dict[str, tuple[str, str, dict[str, str]]] = {
     'target_wave': ('ladrc_msgs/srv/TargetWave', 'follow/target_wave',
                     {'amp_mm': 'amp_mm', 'kind': 'kind', 'freq_hz': 'freq_hz',
                      'freq_end_hz': 'freq_end_hz', 'duration_s': 'duration_s'}),
+    # the CNC interface (docs/interfaces.md, "CNC interface")
+    'pierce': ('ladrc_msgs/srv/Pierce', 'follow/pierce',
+               {'heights_mm': 'heights_mm', 'dwell_s': 'dwell_s', 'cut_gap_mm': 'cut_gap_mm',
+                'thc_delay_s': 'thc_delay_s'}),
+    'lift': ('ladrc_msgs/srv/Lift', 'follow/lift',
+             {'mode': 'mode', 'value_mm': 'value_mm', 'velocity_mm_s': 'velocity_mm_s'}),
+    'hold': ('ladrc_msgs/srv/Hold', 'follow/hold',
+             {'hold': 'hold', 'at_next_segment': 'at_next_segment', 'reason': 'reason'}),
 }
 """command name -> (service type, service name, {keyword argument: request field})."""
 
@@ -38,8 +46,13 @@ def service_class(typename: str) -> Any:
 
 
 def command_args(name: str, request: Any) -> dict[str, Any]:
-    """Return the keyword arguments of command ``name`` from its service ``request``."""
-    return {kw: getattr(request, f) for kw, f in FOLLOW_SERVICES[name][2].items()}
+    """Return the keyword arguments of command ``name`` from its service ``request``.
+
+    An array field (a pierce's stages) comes as a tuple of floats.
+    """
+    args = {kw: getattr(request, f) for kw, f in FOLLOW_SERVICES[name][2].items()}
+    return {kw: tuple(float(x) for x in v) if hasattr(v, '__len__') and not isinstance(v, str)
+            else v for kw, v in args.items()}
 
 
 def fill_request(name: str, args: dict[str, Any]) -> Any:
@@ -48,5 +61,8 @@ def fill_request(name: str, args: dict[str, Any]) -> Any:
     request = service_class(typename).Request()
     for kw, value in args.items():
         f = fields[kw]
-        setattr(request, f, type(getattr(request, f))(value))
+        if isinstance(value, (list, tuple)):
+            setattr(request, f, [float(x) for x in value])  # an array field
+        else:
+            setattr(request, f, type(getattr(request, f))(value))
     return request

@@ -27,3 +27,27 @@ class TickInput(NamedTuple):
     drive_enabled: bool
     drive_fault: bool
     gap_status: int = 0
+
+
+class CncInput(NamedTuple):
+    """The CNC's motion sample a tick used (``ladrc_msgs/CncMotion``, docs/interfaces.md).
+
+    ``stamp_s`` is its receive time on the tick's clock (``TickInput.t_s``), not the CNC's own
+    stamp; ``seq`` 0 means none was ever received: the controller then runs without CNC
+    features, as before the CNC interface. ``FollowStatus.cnc_*`` records it for replay.
+    """
+
+    seq: int
+    stamp_s: float
+    segment: int
+    beam_on: bool
+    contour: int
+    commanded_feed_mm_s: float
+    actual_feed_mm_s: float
+    segment_left_mm: float
+    edge_ahead_mm: float
+
+
+NO_CNC = CncInput(0, float('nan'), 0, False, 0, float('nan'), float('nan'), float('nan'),
+                  float('nan'))
+"""No CNC motion received (``FollowStatus.cnc_seq`` 0)."""

@@ -26,7 +26,8 @@ TOPIC_TYPES: dict[str, str] = {
     SCENARIO_TOPIC: 'std_msgs/msg/String',
 }
 """The topics a recorder records and the tools read (``sim/lockstep``, the lock-step protocol,
-and ``cnc/motion``, not yet read by the controller, are not among them)."""
+and ``cnc/motion``, whose values each tick used are in ``follow/status``, are not among
+them)."""
 
 SEQ_FIELD: dict[str, str] = {
     GAP_TOPIC: 'seq',

@@ -33,6 +33,7 @@ import numpy as np
 import yaml
 
 from .cap_table import CapTableParams
+from .cnc_params import CncParams, cnc_problems
 from .edge import EdgeParams
 from .eso import bandwidth_gains, euler_is_stable, fal_alphas, zoh_gains
 from .follow_params import FollowParams
@@ -172,6 +173,7 @@ class ControllerParams:
     edge: EdgeParams = field(default_factory=EdgeParams)
     stability: StabilityParams = field(default_factory=StabilityParams)
     sensor: CapTableParams = field(default_factory=CapTableParams)
+    cnc: CncParams = field(default_factory=CncParams)
 
     def replace(self, **changes: Any) -> ControllerParams:
         """Return a copy with sections or values replaced (dataclasses.replace)."""
@@ -557,6 +559,7 @@ CROSS_CHECKS: list[Callable[[ControllerParams], list[str]]] = [
     lambda p: p.td_a.problems(p.h_s, 'td_a.'),
     lambda p: p.td_b.problems(p.h_s, 'td_b.'),
     _eso_problems, _law_problems, _limit_problems, _follow_problems, _edge_problems,
+    cnc_problems,
 ]
 
 

@@ -46,6 +46,7 @@ from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.schema import Entry, entries, field_problems
 from ladrc_contract.services import FOLLOW_SERVICES, command_args, service_class
 from ladrc_contract.topics import (
+    CNC_MOTION_TOPIC,
     COMMAND_TOPIC,
     DIAGNOSTICS_TOPIC,
     EVENTS_TOPIC,
@@ -58,6 +59,7 @@ from ladrc_contract.topics import (
 from ladrc_msgs.msg import (
     AxisFeedback,
     CapacitiveHeight,
+    CncMotion,
     FollowEvent,
     FollowStatus,
     LockStep,
@@ -202,7 +204,8 @@ class FollowNode(LoopNode):
              if self.lockstep else None),
             clock=self._clock, system_clock=not self.get_parameter('use_sim_time').value,
             t0_ns=self._t0_ns, h_s=self.h_s, stamp_tolerance_s=np_.stamp_tolerance_s,
-            sync=self.loop_mode == 'sync', sample_period_tolerance=np_.sample_period_tolerance)
+            sync=self.loop_mode == 'sync', sample_period_tolerance=np_.sample_period_tolerance,
+            cnc_reader=self.create_loop_reader(CncMotion, CNC_MOTION_TOPIC, control_in))
         inputs.cap_table = table
         return inputs
 
@@ -391,7 +394,8 @@ class FollowNode(LoopNode):
         tick = TickInput(t_s, s.gap_mm, s.gap_valid, s.gap_stamp_s, s.enc_mm, s.enc_stamp_s,
                          s.drive_enabled, s.drive_fault, s.gap_status)
         controller = self.controller
-        velocity = controller.step(tick)
+        cnc, s.cnc = s.cnc, None  # a new CNC sample, once (the core holds the last one)
+        velocity = controller.step(tick, cnc)
         enable = bool(controller.enable)
         velocity = float(velocity) if enable else 0.0
         sec, nsec = divmod(now_ns, 1_000_000_000)

@@ -19,7 +19,8 @@ from typing import Any
 from ladrc_contract.cdr import CdrPacker
 from ladrc_contract.codes import GapStatus
 from ladrc_contract.loop_io import LoopReader
-from ladrc_contract.topics import FEEDBACK_TOPIC, GAP_TOPIC
+from ladrc_contract.tick import CncInput
+from ladrc_contract.topics import CNC_MOTION_TOPIC, FEEDBACK_TOPIC, GAP_TOPIC
 
 from ..control.cap_table import RawToGap
 
@@ -45,8 +46,9 @@ class SampleInputs:
     def __init__(self, gap_reader: LoopReader, fb_reader: LoopReader,
                  step_reader: LoopReader | None, *, clock: Any, system_clock: bool,
                  t0_ns: int, h_s: float, stamp_tolerance_s: float, sync: bool,
-                 sample_period_tolerance: float) -> None:
+                 sample_period_tolerance: float, cnc_reader: LoopReader | None = None) -> None:
         self.gap_reader, self.fb_reader, self.step_reader = gap_reader, fb_reader, step_reader
+        self.cnc_reader = cnc_reader
         self.lockstep = step_reader is not None
         self._clock, self._system_clock, self._t0_ns = clock, system_clock, t0_ns
         self.h_s = h_s
@@ -58,6 +60,12 @@ class SampleInputs:
         self._gap_cdr = CdrPacker('ladrc_msgs/msg/CapacitiveHeight')
         self._fb_cdr = CdrPacker('ladrc_msgs/msg/AxisFeedback')
         self._step_cdr = CdrPacker('ladrc_msgs/msg/LockStep')
+        self._cnc_cdr = CdrPacker('ladrc_msgs/msg/CncMotion')
+        ci = self._cnc_cdr.index
+        self._cnc_fields = [ci[n] for n in (
+            'header.stamp.sec', 'header.stamp.nanosec', 'seq', 'segment', 'beam_on', 'contour',
+            'commanded_feed_mm_s', 'actual_feed_mm_s', 'segment_left_mm', 'edge_ahead_mm')]
+        self.cnc: CncInput | None = None  # the CNC's newest motion sample, until a tick takes it
         gi, fi = self._gap_cdr.index, self._fb_cdr.index
         self._gap_fields = [gi[n] for n in ('header.stamp.sec', 'header.stamp.nanosec', 'seq',
                                             'gap_mm', 'raw_hz', 'valid', 'status')]
@@ -103,7 +111,8 @@ class SampleInputs:
     def take(self) -> None:
         """Take what waits in the readers (oldest first) into the latest-sample values."""
         for reader, on in ((self.gap_reader, self._on_gap), (self.fb_reader, self._on_feedback),
-                           (self.step_reader, self._on_step)):
+                           (self.step_reader, self._on_step),
+                           (self.cnc_reader, self._on_cnc)):
             if reader is None:
                 continue
             while (taken := reader.take()) is not None:
@@ -197,6 +206,21 @@ class SampleInputs:
         self.enc_mm = position_mm if stamp_ok else math.nan  # not finite: a fault
         self.drive_enabled = enabled
         self.drive_fault = fault
+
+    def _on_cnc(self, data: bytes, received_ns: int) -> None:
+        """Take the CNC's motion sample: its values as sent, timed by its reception here.
+
+        An implausible stamp makes it stale at once (receive time -inf): the core then holds
+        the height, as for a CNC gone silent (control/follow/cnc.py).
+        """
+        values = self._parse(self._cnc_cdr, data)
+        if values is None:
+            return
+        sec, nsec, seq, seg, beam, contour, cmd, act, left, ahead = (
+            values[i] for i in self._cnc_fields)
+        stamp_s, ok = self._receive(CNC_MOTION_TOPIC, sec * 1_000_000_000 + nsec, received_ns)
+        self.cnc = CncInput(max(seq, 1), stamp_s if ok else -math.inf, seg, beam, contour, cmd,
+                            act, left, ahead)
 
     def _check_sample_period(self, seq: int) -> None:
         """Loop 'sync': the feedback's sample period (seq over receive time, 2 s) against h_s.

@@ -43,6 +43,13 @@ INPUT_FIELDS = ('t_s', 'gap_mm', 'gap_valid', 'gap_stamp_s', 'encoder_mm', 'enco
                 'drive_enabled', 'drive_fault', 'gap_status')
 
 
+# The CNC motion values a tick used (FollowStatus revision 2; ladrc_contract.tick.CncInput in
+# field order). Bags from before it lack them: replayed without a CNC, as they ran.
+CNC_FIELDS = ('cnc_seq', 'cnc_stamp_s', 'cnc_segment', 'cnc_beam_on', 'cnc_contour',
+              'cnc_commanded_feed_mm_s', 'cnc_actual_feed_mm_s', 'cnc_segment_left_mm',
+              'cnc_edge_ahead_mm')
+
+
 # Internals compared / plotted (velocity_mm_s is the command itself, fault_reason a string).
 COMPARED_INTERNALS = tuple(k for k in INTERNALS_KEYS if k not in ('velocity_mm_s',
                                                                    'fault_reason'))
@@ -50,7 +57,7 @@ COMPARED_INTERNALS = tuple(k for k in INTERNALS_KEYS if k not in ('velocity_mm_s
 
 # The follow/status fields replay reads (a long bag is read into these columns only).
 REPLAY_FIELDS = ('tick', 'velocity_mm_s') + INPUT_FIELDS + tuple(
-    k for k in COMPARED_INTERNALS if k not in INPUT_FIELDS)
+    k for k in COMPARED_INTERNALS if k not in INPUT_FIELDS) + CNC_FIELDS
 
 
 CHUNK_TICKS = 65536

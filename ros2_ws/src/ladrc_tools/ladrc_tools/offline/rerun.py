@@ -14,6 +14,7 @@ import math
 import time
 from typing import Any, Callable, Iterator, Mapping
 
+from ladrc_contract.tick import CncInput
 from ladrc_follow.control.follow import FollowController, TickInput
 from ladrc_follow.control.params import (
     ControllerParams,
@@ -25,6 +26,7 @@ import yaml
 
 from .overrides import _delta, _with
 from .recording import (
+    CNC_FIELDS,
     COMPARED_INTERNALS,
     INPUT_FIELDS,
     KIND_NAMES,
@@ -127,6 +129,7 @@ class Replay:
             den_l = [bool(v) for v in den_l]
             dfl_l = [bool(v) for v in dfl_l]
             stat_l = [int(v) for v in stat_l]
+            cnc_l = _cnc_inputs(rb.status, m)
             out_v = [0.0] * m
             out_en = [False] * m
             rows: list[dict] | None = [] if self.record_internals else None
@@ -146,7 +149,8 @@ class Replay:
                     else:
                         notes.append(f'tick {ev.tick}: unknown event kind {ev.kind} ignored')
                 u = step(new_tick(TickInput, (t_l[i], gap_l[i], valid_l[i], gst_l[i], enc_l[i],
-                                              est_l[i], den_l[i], dfl_l[i], stat_l[i])))
+                                              est_l[i], den_l[i], dfl_l[i], stat_l[i])),
+                         cnc_l[i])
                 # follow_node: the velocity sent is the step output when enabled, else 0.0
                 if ctl.enable:
                     out_v[i] = u
@@ -189,6 +193,16 @@ class Replay:
             self.notes.append(f'tick {ev.tick}: parameter set refused '
                               f'({" ".join(str(exc).split())[:120]})')
         return new_set
+
+
+def _cnc_inputs(status: Mapping[str, np.ndarray], m: int) -> list[CncInput | None]:
+    """Return the CNC sample each tick used (FollowStatus.cnc_*); None where none came."""
+    seq = status.get('cnc_seq')
+    if seq is None or not seq.any():
+        return [None] * m
+    cols = [status[f].tolist() for f in CNC_FIELDS]
+    return [CncInput(int(q), st, int(sg), bool(b), int(c), cf, af, sl, ea) if q else None
+            for q, st, sg, b, c, cf, af, sl, ea in zip(*cols, strict=True)]
 
 
 def replay(rec: Recording, params: ControllerParams | None = None, *,

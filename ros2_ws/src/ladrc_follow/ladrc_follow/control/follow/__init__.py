@@ -15,6 +15,7 @@ from ..follow_params import FollowParams
 from .commands import COMMANDS, MAX_DELAY_S, MIN_GRADIENT
 from .machine import FollowController, PreparedSet
 from .states import (
+    ANSWER_KEYS,
     GAP_STATUS_COLLISION,
     GAP_STATUS_FAULT,
     GAP_STATUS_OK,
@@ -33,5 +34,5 @@ __all__ = [
     'FollowState', 'FollowParams', 'FollowController', 'PreparedSet', 'TickInput',
     'GAP_STATUS_OK', 'GAP_STATUS_OUT_OF_RANGE', 'GAP_STATUS_COLLISION', 'GAP_STATUS_FAULT',
     'LIMIT_VELOCITY', 'LIMIT_ACCELERATION', 'LIMIT_ESO_STATE', 'LIMIT_SOFT_Z',
-    'INTERNALS_KEYS', 'COMMANDS', 'MAX_DELAY_S', 'MIN_GRADIENT', 'TRANSITIONS',
+    'INTERNALS_KEYS', 'ANSWER_KEYS', 'COMMANDS', 'MAX_DELAY_S', 'MIN_GRADIENT', 'TRANSITIONS',
 ]

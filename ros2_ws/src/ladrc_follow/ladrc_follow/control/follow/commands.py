@@ -96,6 +96,7 @@ def _apply_start(c, st: int, kw: dict) -> None:
         c._lock_ok = False
     elif _following(st):
         c._set_target(kw['target_gap_mm'])
+        c._end_lift()
 
 
 def _check_stop(view: CommandView, kw: dict) -> tuple[str, str, dict]:
@@ -124,6 +125,7 @@ def _check_set_target(view: CommandView, kw: dict) -> tuple[str, str, dict]:
 def _apply_set_target(c, st: int, kw: dict) -> None:
     if _following(st):
         c._set_target(kw['target_gap_mm'])
+        c._end_lift()  # a new target ends a lift: approached from where the axis is
 
 
 def _check_reset(view: CommandView, kw: dict) -> tuple[str, str, dict]:
@@ -224,6 +226,105 @@ def _apply_gradient(c, st: int, kw: dict) -> None:
         _due_insert(c._gradients, (due, kw['target_gap_mm'], v, a))
 
 
+# ---- the CNC interface: pierce / lift / hold (docs/interfaces.md, "CNC interface") -------------
+MAX_STAGES = 8
+"""The most pierce stages a program may have."""
+MAX_DWELL_S = 60.0
+"""The longest dwell of one pierce stage, and the longest THC delay."""
+LIFT_TO_HEIGHT, LIFT_BY_DISTANCE = 0, 1
+"""``Lift.srv`` modes."""
+
+
+def _check_pierce(view: CommandView, kw: dict) -> tuple[str, str, dict]:
+    missing = [a for a in TABLE['pierce'].args if a not in kw]
+    if missing:
+        return f'pierce: missing {", ".join(missing)}', '', kw
+    try:
+        heights = tuple(kw['heights_mm'])
+        dwell = tuple(kw['dwell_s'])
+    except TypeError:
+        return 'pierce: heights_mm and dwell_s must be lists of numbers', '', kw
+    if not 1 <= len(heights) <= MAX_STAGES or len(dwell) != len(heights):
+        return (f'pierce: {len(heights)} stage heights and {len(dwell)} dwell times: give '
+                f'1..{MAX_STAGES} stages, one dwell each'), '', kw
+    for t in (*dwell, kw['thc_delay_s']):
+        if not (is_real(t) and 0.0 <= t <= MAX_DWELL_S):
+            return f'pierce: dwell / THC delay {t!r} s outside 0..{MAX_DWELL_S:g} s', '', kw
+    for i, z in enumerate(heights):
+        why = check_target(view, f'pierce stage {i + 1}', z, view.offset_mm)
+        if why:
+            return why, '', kw
+    why = check_target(view, 'pierce cut gap', kw['cut_gap_mm'], view.offset_mm)
+    if why:
+        return why, '', kw
+    if view.state == FAULT:
+        return f'pierce: in FAULT ({view.fault_reason}); reset_fault first', '', kw
+    kw = {'heights_mm': tuple(float(z) for z in heights),
+          'dwell_s': tuple(float(t) for t in dwell),
+          'cut_gap_mm': float(kw['cut_gap_mm']), 'thc_delay_s': float(kw['thc_delay_s'])}
+    stages = ', '.join(f'{z:g} mm {t:g} s' for z, t in zip(kw['heights_mm'], kw['dwell_s'],
+                                                                strict=True))
+    return '', (f'pierce: {stages}; then {kw["cut_gap_mm"]:g} mm, THC delay '
+                f'{kw["thc_delay_s"]:g} s' + (' (follow starts)' if view.state == IDLE else '')
+                ), kw
+
+
+def _apply_pierce(c, st: int, kw: dict) -> None:
+    if st == FAULT:
+        return
+    first = c._partner.start_pierce(kw['heights_mm'], kw['dwell_s'], kw['cut_gap_mm'],
+                                    kw['thc_delay_s'])
+    if st == IDLE:
+        _apply_start(c, st, {'target_gap_mm': first})
+    else:
+        c._set_target(first)
+        c._end_lift()
+
+
+def _check_lift(view: CommandView, kw: dict) -> tuple[str, str, dict]:
+    mode, value = kw.get('mode', LIFT_TO_HEIGHT), kw.get('value_mm')
+    v = kw.get('velocity_mm_s', 0.0)
+    cnc, v_max = view.params.cnc, view.params.limits.v_max_mm_s
+    if isinstance(mode, bool) or mode not in (LIFT_TO_HEIGHT, LIFT_BY_DISTANCE):
+        return f'lift: mode must be 0 (to a height) or 1 (by a distance), got {mode!r}', '', kw
+    if not (is_real(value) and 0.0 < value <= cnc.max_lift_mm):
+        return f'lift: value_mm {value!r} outside 0 (excl.)..{cnc.max_lift_mm:g} mm', '', kw
+    if not (is_real(v) and 0.0 <= v <= v_max):
+        return (f'lift: velocity_mm_s {v!r} outside 0..{v_max:g} mm/s '
+                '(0: cnc.lift_velocity_mm_s)'), '', kw
+    if not _following(view.state) or view.state == LOCKING:
+        return f'lift: not following ({FollowState(view.state).name})', '', kw
+    kw = {'mode': int(mode), 'value_mm': float(value), 'velocity_mm_s': float(v)}
+    return '', (f'lift {"to" if mode == LIFT_TO_HEIGHT else "by"} {value:g} mm, then held '
+                '(set_target or pierce resumes)'), kw
+
+
+def _apply_lift(c, st: int, kw: dict) -> None:
+    if not _following(st) or st == LOCKING:
+        return
+    value = kw['value_mm']
+    if kw['mode'] == LIFT_TO_HEIGHT:
+        gap = c._last_gap
+        value = value - gap if gap == gap else 0.0  # never toward the sheet
+    c._partner.start_lift(max(value, 0.0), kw['velocity_mm_s'], c._u)
+
+
+def _check_hold(view: CommandView, kw: dict) -> tuple[str, str, dict]:
+    hold, nxt, reason = kw.get('hold'), kw.get('at_next_segment', False), kw.get('reason', '')
+    if hold not in (True, False) or nxt not in (True, False) or not isinstance(reason, str):
+        return (f'hold: hold and at_next_segment must be true or false, reason a string; got '
+                f'{hold!r}, {nxt!r}, {reason!r}'), '', kw
+    if not _following(view.state):
+        return f'hold: not following ({FollowState(view.state).name})', '', kw
+    kw = {'hold': bool(hold), 'at_next_segment': bool(nxt), 'reason': reason[:200]}
+    return '', f'{"hold" if hold else "release"} {"at the next segment" if nxt else "now"}', kw
+
+
+def _apply_hold(c, st: int, kw: dict) -> None:
+    if _following(st):
+        c._partner.command_hold(kw['hold'], kw['at_next_segment'], kw['reason'])
+
+
 _WAVE_OFF = {'kind': 'sine', 'amp_mm': 0.0, 'freq_hz': 1.0, 'freq_end_hz': 0.0,
              'duration_s': 0.0}
 
@@ -269,6 +370,10 @@ TABLE: dict[str, Command] = {
     'reset_fault': Command((), _check_reset, _apply_reset),
     'target_wave': Command(('kind', 'amp_mm', 'freq_hz', 'freq_end_hz', 'duration_s'),
                            _check_wave, _apply_wave),
+    'pierce': Command(('heights_mm', 'dwell_s', 'cut_gap_mm', 'thc_delay_s'), _check_pierce,
+                      _apply_pierce),
+    'lift': Command(('mode', 'value_mm', 'velocity_mm_s'), _check_lift, _apply_lift),
+    'hold': Command(('hold', 'at_next_segment', 'reason'), _check_hold, _apply_hold),
 }
 """Command name -> its table entry."""
 
@@ -282,7 +387,7 @@ def projected_state(state: int, pending: list) -> int:
     for name, _ in pending:
         if name == 'stop_follow' and s != FAULT:
             s = IDLE
-        elif name == 'start_follow' and s == IDLE:
+        elif name in ('start_follow', 'pierce') and s == IDLE:
             s = LOCKING
         elif name == 'reset_fault' and s == FAULT:
             s = IDLE

@@ -43,6 +43,7 @@ from ..params import ControllerParams, check
 from ..pid import FollowPID
 from ..target_wave import TargetWave
 from . import input_gate as gate
+from .cnc import SUB_LIFT, CncPartner
 from .commands import TABLE, CommandView, projected_state
 from .input_gate import InputGate
 from .limiter import OutputLimiter
@@ -116,6 +117,7 @@ class FollowController:
                        'verify': 0, 'edge_gain': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
         self._input_gate = InputGate(self.counts)
+        self._partner = CncPartner()  # the CNC interface (.cnc)
         self._limiter = OutputLimiter()
         self._pending: list[tuple[str, dict]] = []
         self._pending_build: PreparedSet | None = None
@@ -167,6 +169,7 @@ class FollowController:
         self._h = h
         self._limiter.configure(p.limits, h)
         self._input_gate.configure(f, h)
+        self._partner.configure(p, h)
         self._pid_du = p.pid.a_max_mm_s2 * h
         self._use_ladrc = f.controller == 'ladrc'
         self._lag_comp = f.approach_lag_compensation
@@ -318,6 +321,16 @@ class FollowController:
         self._wave = None
         self._closing = False
         self._limiter.uncap()
+        self._partner.stop()
+
+    def _end_lift(self) -> None:
+        """End a lift: the follow approaches its target again from where the axis is."""
+        if not self._partner.lifting:
+            return
+        self._partner.end_lift()
+        gap, enc = self._last_gap, self._last_enc
+        if self._state in (PREINTERPOLATE, PID, LADRC_STATE) and gap == gap and enc == enc:
+            self._enter_approach(gap, enc, None)
 
     def _set_target(self, target: float) -> None:
         self._target = target
@@ -440,8 +453,11 @@ class FollowController:
         return self._ramp_to_zero()
 
     # ------------------------------------------------------------------ tick
-    def step(self, tick: tuple) -> float:
+    def step(self, tick: tuple, cnc: tuple | None = None) -> float:
         """One tick: return the velocity command in mm/s (+ = up, widens the gap).
+
+        ``cnc``: the CNC's motion sample this tick uses (:class:`~ladrc_contract.tick.CncInput`;
+        None: none new, the last one holds).
 
         Every exception inside the tick and every non-finite command ends in FAULT with a zero
         command (:meth:`fail`): the caller always gets a finite number.
@@ -452,6 +468,9 @@ class FollowController:
                 self._swap_params()
             if self._pending:
                 self._apply_commands()
+            partner = self._partner
+            partner.begin(self._state == IDLE)
+            partner.motion(tick[0], cnc)
             if len(tick) != 9:
                 tick = (*tick, 0)  # an 8-field tick (the sim runner's): status not reported
             self._drive_bad = not tick[6] or tick[7]
@@ -512,6 +531,7 @@ class FollowController:
         verdict = ig.screen(tick)
         if verdict != gate.USABLE:
             if verdict == gate.HOLD:
+                self._partner.void_lock(ig.reason or 'reading jumped wider: held')
                 return self._hold_up_only()
             if verdict == gate.DRIVE:
                 return self._drive_fault(tick[7])
@@ -526,6 +546,10 @@ class FollowController:
         u = self._edge_verdict(gap, enc)
         if u is not None:
             return u
+        if self._partner.active:
+            u = self._cnc_verdict(gap, enc)
+            if u is not None:
+                return u
         if self._state == PREINTERPOLATE:
             return self._approach(gap, enc)
         if self._comp and self._comp[0][0] <= self._tick:
@@ -552,6 +576,7 @@ class FollowController:
         if verdict == FALLING:
             # faster than a sheet falls: not followed down; closing in afterwards is probed
             self.counts['fall_hold'] += 1
+            self._partner.void_lock('the apparent surface falls faster than a sheet: held')
             if not self._followed:
                 self._approach_ticks += 1  # held time counts toward the not-followed alarm
                 if self._approach_ticks >= self._timeout_ticks:
@@ -566,6 +591,7 @@ class FollowController:
             # sunk below the verified level while too fast to verify (or where a verification
             # could not tell): not followed further down
             self.counts['sink_hold'] += 1
+            self._partner.void_lock('sunk below the verified level too fast to verify: held')
             if st == PREINTERPOLATE:
                 return self._hold_up_only()
             self._override = -math.inf  # up only
@@ -580,6 +606,32 @@ class FollowController:
             self.counts['edge_gain'] += 1
             return self._fault(guard.reason)
         self._limiter.down_cap_mm_s = guard.down_cap_mm_s
+        return None
+
+    def _cnc_verdict(self, gap: float, enc: float) -> float | None:
+        """Act on the CNC partner's verdict (.cnc): a command that ends the tick, or None.
+
+        A pierce stage changes the target; a lift overrides the law with its move up; a hold
+        (corner lock, edge ahead, dwell, THC delay, commanded) passes only commands away from
+        the sheet, the law running on (as the edge guard's hold).
+        """
+        p = self._partner
+        st = self._state
+        settled = (st == PID or st == LADRC_STATE) and self._followed
+        new_target = p.judge(self._tick * self._h, gap, self._target_eff, settled)
+        if new_target == new_target:  # a pierce stage (checked against the limits at accept)
+            self._set_target(new_target)
+            st = self._state
+        if p.sub == SUB_LIFT and not p.holding:
+            v = p.lift_velocity()
+            if st == PREINTERPOLATE:
+                return self._move_up(v, enc)
+            self._override = v
+        elif p.holding:
+            if st == PREINTERPOLATE:
+                return self._hold_up_only()
+            if self._override != self._override:  # the edge guard's own override goes first
+                self._override = -math.inf
         return None
 
     def _law_target(self, gap: float) -> float:
@@ -804,7 +856,8 @@ class FollowController:
         return dict(state=st, followed=self._followed, machining=self._machining,
                     fault_reason=self._fault_reason, target_gap_mm=self._target_eff, **z,
                     u_unlimited_mm_s=float(unlimited), velocity_mm_s=self._u,
-                    limit_flags=int(flags))
+                    limit_flags=int(flags),
+                    **self._partner.answers(st, self._followed, self._retracting))
 
 
 TICK: dict[int, Callable[[FollowController, tuple], float]] = {

@@ -63,6 +63,14 @@ INTERNALS_KEYS = (
     'd_term_mm_s', 'disturbance_term_mm_s', 'u_unlimited_mm_s', 'velocity_mm_s',
     'limit_flags',
 )
+# ... followed by these (FollowStatus revision 2): the CNC partner's answers and the CNC values
+# the tick used (control/follow/cnc.py); bags from before it lack them
+ANSWER_KEYS = (
+    'substate', 'hold_reason', 'in_position', 'ready_to_move', 'feed_hold_request',
+    'feed_override_request', 'cnc_seq', 'cnc_stamp_s', 'cnc_segment', 'cnc_beam_on',
+    'cnc_contour', 'cnc_commanded_feed_mm_s', 'cnc_actual_feed_mm_s', 'cnc_segment_left_mm',
+    'cnc_edge_ahead_mm',
+)
 
 # where this tick's command came from (FollowStatus p/d terms and limit flags follow it)
 SOURCE_NONE, SOURCE_INTERP, SOURCE_PID, SOURCE_LADRC = 0, 1, 2, 3

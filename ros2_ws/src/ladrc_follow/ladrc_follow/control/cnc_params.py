@@ -1,0 +1,53 @@
+"""Parameters of the CNC interface (the ``cnc`` section of ControllerParams).
+
+Kept apart from :mod:`.follow.cnc` (the partner that uses them) so that :mod:`.params` can type
+its ``cnc`` section without an import cycle, as :mod:`.follow_params`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ladrc_contract.schema import Section, param
+
+_PLASMAC = 'LinuxCNC plasmac.comp'
+
+
+@dataclass(frozen=True)
+class CncParams(Section):
+    """The CNC interface (``ControllerParams.cnc``)."""
+
+    PREFIX = 'cnc.'
+
+    corner_lock: bool = param(True, '', 'hold the height while the actual feed lags the '
+                              'commanded one (corners, short segments)', seed=_PLASMAC)
+    corner_lock_ratio: float = param(0.8, '1', 'corner lock: hold while actual / commanded feed '
+                                     'is below this', gt=0.0, le=0.99, seed=_PLASMAC)
+    corner_unlock_ratio: float = param(0.9, '1', 'corner lock: release once the ratio is at or '
+                                       'above this (hysteresis; >= corner_lock_ratio)',
+                                       gt=0.0, le=1.0, seed=_PLASMAC)
+    corner_min_feed_mm_s: float = param(1.0, 'mm/s', 'a commanded cutting feed below this '
+                                        'holds as a corner (no ratio to judge)', gt=0.0,
+                                        le=1000.0)
+    edge_ahead_hold_mm: float = param(10.0, 'mm', 'hold while cutting with the outline or a '
+                                      'kerf this close ahead (about the sensor footprint '
+                                      'radius); 0 = off', ge=0.0, le=100.0)
+    edge_release_mm: float = param(10.0, 'mm', 'after the edge, stay held for this much path '
+                                   '(the footprint still sees it)', ge=0.0, le=100.0)
+    stale_timeout_s: float = param(0.02, 's', 'a CNC motion sample older than this, once one '
+                                   'came, holds the height', gt=0.0, le=1.0)
+    moving_feed_mm_s: float = param(0.5, 'mm/s', 'XY counts as moving above this actual path '
+                                    'speed (a CNC that does not wait)', gt=0.0, le=100.0)
+    lift_velocity_mm_s: float = param(50.0, 'mm/s', 'lift speed when a lift gives none '
+                                      '(capped by limits.v_max_mm_s)', gt=0.0, le=1000.0)
+    max_lift_mm: float = param(50.0, 'mm', 'largest lift (by distance, or height above the '
+                               'reading)', gt=0.0, le=500.0)
+
+
+def cnc_problems(p) -> list[str]:
+    """Cross checks of the ``cnc`` section against the rest of the set (params.CROSS_CHECKS)."""
+    c = p.cnc
+    if c.corner_unlock_ratio < c.corner_lock_ratio:
+        return [f'cnc.corner_unlock_ratio ({c.corner_unlock_ratio:g}) below '
+                f'cnc.corner_lock_ratio ({c.corner_lock_ratio:g}): the lock would chatter']
+    return []
