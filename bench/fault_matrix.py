@@ -288,9 +288,11 @@ class CncFuzz(Corrupt):
 
     def _step(self, tick, cnc: CncInput) -> float:
         r = self.rng
+        if r.random() < 0.0005:  # the follow resumes (a lift or a leapfrog holds until then)
+            self.c.command('set_target', target_gap_mm=1.0)
         if r.random() < 0.002:
             self.tried += 1
-            name = r.choice(['pierce', 'lift', 'hold'])
+            name = r.choice(['pierce', 'lift', 'hold', 'leapfrog'])
             args = {'pierce': dict(heights_mm=[self._value() for _ in range(r.randint(0, 3))],
                                    dwell_s=[r.uniform(-1, 2) for _ in range(r.randint(0, 3))],
                                    cut_gap_mm=self._value() % 3, thc_delay_s=r.uniform(-1, 1)),
@@ -298,7 +300,10 @@ class CncFuzz(Corrupt):
                                  velocity_mm_s=self._value()),
                     'hold': dict(hold=r.choice([True, False, 'x']),
                                  at_next_segment=r.choice([True, False]),
-                                 reason=r.choice(['', 'fuzz']))}[name]
+                                 reason=r.choice(['', 'fuzz'])),
+                    'leapfrog': dict(lift_mm=self._value(), rapid_length_mm=self._value(),
+                                     rapid_feed_mm_s=self._value(),
+                                     arrive_height_mm=self._value() % 10)}[name]
             self.accepted += self.c.command(name, **args)[0]
         u = self.c.step(tick, cnc)
         if 'exception' in self.c.fault_reason:

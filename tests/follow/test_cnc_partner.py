@@ -253,10 +253,12 @@ def test_without_a_cnc_in_position_follows_followed():
     ('lift', dict(mode=1, value_mm=4.0, velocity_mm_s=20.0)),
     ('hold', dict(hold=True, at_next_segment=True, reason='part drops out')),
     ('hold', dict(hold=False, at_next_segment=False, reason='')),
+    ('leapfrog', dict(lift_mm=8.0, rapid_length_mm=200.0, rapid_feed_mm_s=500.0,
+                      arrive_height_mm=3.0)),
 ])
 def test_cnc_commands_survive_the_event_codec(name, kwargs):
     ev = encode(name, kwargs)
-    assert ev.kind in (EventKind.PIERCE, EventKind.LIFT, EventKind.HOLD)
+    assert ev.kind in (EventKind.PIERCE, EventKind.LIFT, EventKind.HOLD, EventKind.LEAPFROG)
     assert decode(ev) == (name, kwargs)
 
 
@@ -272,6 +274,12 @@ def test_cnc_commands_survive_the_event_codec(name, kwargs):
     ('lift', dict(mode=0, value_mm=-1.0, velocity_mm_s=0.0), 'value_mm'),
     ('lift', dict(mode=0, value_mm=1.0, velocity_mm_s=math.inf), 'velocity_mm_s'),
     ('hold', dict(hold='yes', at_next_segment=False, reason=''), 'true or false'),
+    ('leapfrog', dict(lift_mm=8.0, rapid_length_mm=200.0, rapid_feed_mm_s=500.0,
+                      arrive_height_mm=9.0), 'arrive_height_mm'),
+    ('leapfrog', dict(lift_mm=8.0, rapid_length_mm=0.0, rapid_feed_mm_s=500.0,
+                      arrive_height_mm=3.0), 'positive'),
+    ('leapfrog', dict(lift_mm=math.nan, rapid_length_mm=1.0, rapid_feed_mm_s=500.0,
+                      arrive_height_mm=3.0), 'finite'),
 ])
 def test_bad_cnc_commands_are_rejected_with_their_reason(name, kwargs, why):
     loop, _ = following()
@@ -318,3 +326,70 @@ def test_a_cnc_run_replays_bit_for_bit_from_its_status_fields():
     assert got == [r['velocity_mm_s'] for r in rows]
     assert {r['substate'] for r in rows} >= {int(SubState.CORNER_LOCK),
                                               int(SubState.EDGE_AHEAD), int(SubState.HOLD)}
+
+
+# ------------------------------------------------------------------------------ leapfrog
+def leapfrog_run(loop: Loop, seconds: float, hook=None) -> list[dict]:
+    rows = []
+    for _ in range(int(round(seconds / H))):
+        loop.run(1, hook)
+        rows.append(loop.c.internals())
+    return rows
+
+
+def test_leapfrog_lifts_over_the_rapid_and_arrives_at_the_pierce_height_in_time():
+    loop, cnc = following()
+    c = loop.c
+    cnc.segment, cnc.beam = int(Segment.RAPID), False
+    ok, msg = c.command('leapfrog', lift_mm=8.0, rapid_length_mm=200.0, rapid_feed_mm_s=500.0,
+                        arrive_height_mm=3.0)
+    assert ok, msg
+    i0 = loop.i
+
+    def over_a_hole(i, d):  # the middle of the rapid crosses a hole: out of range, no sheet
+        if i0 + 200 <= i < i0 + 500:
+            d['gap_valid'], d['gap_status'], d['gap_mm'] = False, 1, math.inf
+
+    rows = leapfrog_run(loop, 0.6, over_a_hole)
+    gap = np.array(loop.gap[i0:])
+    sub = [r['substate'] for r in rows]
+    assert set(sub) == {int(SubState.LEAPFROG)} and int(c.state) == LADRC
+    assert abs(gap.max() - 8.0) < 0.3  # the peak, lift_mm above the sheet
+    k_end = int(round(0.4 / H))  # the rapid's end: 200 mm at 500 mm/s
+    assert 2.98 < gap[k_end] < 3.1, gap[k_end]  # there in time: the rapid never waits
+    assert abs(gap[-1] - 3.0) < 0.05 and rows[-1]['in_position'] and rows[-1]['ready_to_move']
+    assert not rows[k_end // 2]['in_position'] and not rows[k_end // 2]['ready_to_move']
+    v_cap = c.params.cnc.leapfrog_velocity_mm_s
+    assert max(abs(u) for u in loop.u[i0:]) <= v_cap * 1.05 + 2.0
+    # the CNC stops at the pierce point and pierces: the follow approaches from where it is
+    cnc.segment, cnc.feed = int(Segment.PIERCE), 0.0
+    assert c.command('pierce', heights_mm=[3.0], dwell_s=[0.05], cut_gap_mm=1.0,
+                     thc_delay_s=0.0)[0]
+    loop.run_until(lambda: int(c.state) == LADRC and c.internals()['substate'] == 0
+                   and c.internals()['in_position'], 8000)
+    assert abs(loop.gap[-1] - 1.0) < 0.03
+
+
+def test_leapfrog_on_a_short_rapid_lowers_its_peak_and_never_descends_below_the_arrival():
+    loop, _ = following()
+    c = loop.c
+    assert c.command('leapfrog', lift_mm=10.0, rapid_length_mm=30.0, rapid_feed_mm_s=500.0,
+                     arrive_height_mm=2.0)[0]
+    i0 = loop.i
+    leapfrog_run(loop, 0.3)
+    gap = np.array(loop.gap[i0:])
+    assert 2.0 < gap.max() < 9.0  # a lower peak in 60 ms
+    assert gap[int(0.06 / H):].min() > 1.9  # never below the arrival height
+
+
+def test_leapfrog_stops_descending_where_the_sheet_is_higher_than_at_the_start():
+    loop, _ = following()
+    c = loop.c
+    t0 = loop.i * H
+    loop.sheet = lambda t: 1.5 * min(max(t - t0, 0.0) / 0.2, 1.0)  # 1.5 mm higher at the end
+    assert c.command('leapfrog', lift_mm=6.0, rapid_length_mm=150.0, rapid_feed_mm_s=500.0,
+                     arrive_height_mm=3.0)[0]
+    i0 = loop.i
+    leapfrog_run(loop, 0.6)
+    gap = np.array(loop.gap[i0:])
+    assert gap.min() > 0.9 and gap[-1] >= 3.0 - 0.05  # by the reading, not the start's level

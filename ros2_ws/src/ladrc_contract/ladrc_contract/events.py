@@ -43,6 +43,7 @@ COMMAND_KIND: dict[str, EventKind] = {
     'pierce': EventKind.PIERCE,
     'lift': EventKind.LIFT,
     'hold': EventKind.HOLD,
+    'leapfrog': EventKind.LEAPFROG,
 }
 """The follow commands a ``FollowEvent`` records (``PARAMETERS`` is a parameter set)."""
 
@@ -70,6 +71,9 @@ def encode(name: str, args: dict[str, Any]) -> EventFields:
     if name == 'lift':
         return EventFields(kind, float(a['value_mm']), velocity_mm_s=float(a['velocity_mm_s']),
                            flag=bool(a['mode']))
+    if name == 'leapfrog':
+        return EventFields(kind, float(a['arrive_height_mm']), text=json.dumps(
+            {k: a[k] for k in ('lift_mm', 'rapid_length_mm', 'rapid_feed_mm_s')}))
     if name == 'hold':
         return EventFields(kind, delay_s=-1.0 if a['at_next_segment'] else 0.0,
                            flag=bool(a['hold']), text=a['reason'])
@@ -103,6 +107,8 @@ def decode(ev: Any) -> tuple[str, dict[str, Any]]:
     if k == EventKind.LIFT:
         return 'lift', {'mode': int(ev.flag), 'value_mm': ev.value_mm,
                         'velocity_mm_s': ev.velocity_mm_s}
+    if k == EventKind.LEAPFROG:
+        return 'leapfrog', {**json.loads(ev.text), 'arrive_height_mm': ev.value_mm}
     if k == EventKind.HOLD:
         return 'hold', {'hold': ev.flag, 'at_next_segment': ev.delay_s < 0.0, 'reason': ev.text}
     if k in (EventKind.STOP_FOLLOW, EventKind.RESET_FAULT):

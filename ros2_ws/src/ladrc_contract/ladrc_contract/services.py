@@ -35,6 +35,9 @@ FOLLOW_SERVICES: dict[str, tuple[str, str, dict[str, str]]] = {
              {'mode': 'mode', 'value_mm': 'value_mm', 'velocity_mm_s': 'velocity_mm_s'}),
     'hold': ('ladrc_msgs/srv/Hold', 'follow/hold',
              {'hold': 'hold', 'at_next_segment': 'at_next_segment', 'reason': 'reason'}),
+    'leapfrog': ('ladrc_msgs/srv/Leapfrog', 'follow/leapfrog',
+                 {'lift_mm': 'lift_mm', 'rapid_length_mm': 'rapid_length_mm',
+                  'rapid_feed_mm_s': 'rapid_feed_mm_s', 'arrive_height_mm': 'arrive_height_mm'}),
 }
 """command name -> (service type, service name, {keyword argument: request field})."""
 

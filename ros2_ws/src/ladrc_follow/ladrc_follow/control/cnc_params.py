@@ -40,6 +40,16 @@ class CncParams(Section):
                                     'speed (a CNC that does not wait)', gt=0.0, le=100.0)
     lift_velocity_mm_s: float = param(50.0, 'mm/s', 'lift speed when a lift gives none '
                                       '(capped by limits.v_max_mm_s)', gt=0.0, le=1000.0)
+    leapfrog_velocity_mm_s: float = param(100.0, 'mm/s', 'leapfrog: Z speed limit of its moves '
+                                          '(capped by limits.v_max_mm_s)', gt=0.0, le=1000.0,
+                                          seed='Beckhoff TF5290')
+    leapfrog_accel_mm_s2: float = param(2000.0, 'mm/s²', 'leapfrog: Z acceleration limit of its '
+                                        'moves (capped by limits.a_max_mm_s2)', gt=0.0,
+                                        le=1e6, seed='Beckhoff TF5290')
+    leapfrog_settle_s: float = param(0.03, 's', 'leapfrog: time constant of the final approach '
+                                     'to the arrival level (at least 4x the drive velocity '
+                                     "loop's lag, or the lag carries the axis below it)",
+                                     ge=0.005, le=1.0)
     max_lift_mm: float = param(50.0, 'mm', 'largest lift (by distance, or height above the '
                                'reading)', gt=0.0, le=500.0)
 

@@ -35,6 +35,7 @@ from ladrc_contract.tick import NO_CNC, CncInput
 
 from ..cnc_params import CncParams
 from ..interp import Interpolator, InterpParams
+from .leapfrog import Leapfrog, plan
 
 __all__ = ['CncParams', 'CncPartner']
 
@@ -68,8 +69,8 @@ class CncPartner:
         self._phase = -1           # pierce phase; -1: no pierce running
         self._count = 0            # dwell / THC delay ticks left
         self._cut = (math.nan, 0)  # pierce: (cut gap, THC delay ticks)
-        self._lift: Interpolator | None = None
-        self._lifted = False       # a lift reached its height: held there
+        self._move: _Lift | Leapfrog | None = None  # a planned move (lift, leapfrog) running
+        self._move_sub = SUB_NONE  # its sub-state: SUB_LIFT or SUB_LEAPFROG
         self._inpos = 0            # ticks within tolerance of the target
         self._inpos_target = math.nan
 
@@ -81,17 +82,19 @@ class CncPartner:
         self._hold_ticks = max(1, int(round(p.pid.followed_hold_s / h_s)))
         self._v_cap = p.limits.v_max_mm_s
         self._a = p.limits.a_max_mm_s2
+        self._leap_v = min(p.cnc.leapfrog_velocity_mm_s, p.limits.v_max_mm_s)
+        self._leap_a = min(p.cnc.leapfrog_accel_mm_s2, p.limits.a_max_mm_s2)
 
     @property
     def active(self) -> bool:
         """A CNC motion came or a CNC command runs (otherwise nothing here acts)."""
-        return (self.cnc.seq != 0 or self._phase >= 0 or self._lift is not None
-                or self._lifted or bool(self._hold) or self._hold_next is not None)
+        return (self.cnc.seq != 0 or self._phase >= 0 or self.planned
+                or bool(self._hold) or self._hold_next is not None)
 
     @property
-    def lifting(self) -> bool:
-        """A lift is running or holds its height."""
-        return self._lift is not None or self._lifted
+    def planned(self) -> bool:
+        """A planned move (lift, leapfrog) owns the axis: running, or held at its height."""
+        return self._move is not None
 
     # ---- commands (applied at a tick's start by the machine) ------------------------------
     def start_pierce(self, heights_mm, dwell_s, cut_gap_mm: float, thc_delay_s: float) -> float:
@@ -101,23 +104,47 @@ class CncPartner:
                         for z, t in zip(heights_mm, dwell_s, strict=True)]
         self._cut = (float(cut_gap_mm), int(round(thc_delay_s / h)))
         self._stage, self._phase = 0, _STAGE_APPROACH
-        self.end_lift()
+        self.end_move()
         self._inpos = 0
         return self._stages[0][0]
 
     def start_lift(self, distance_mm: float, velocity_mm_s: float, u_mm_s: float) -> None:
         """Lift by ``distance_mm`` (> 0) at ``velocity_mm_s`` from the applied command."""
         v = min(velocity_mm_s if velocity_mm_s > 0.0 else self.p.lift_velocity_mm_s, self._v_cap)
-        self._lift = Interpolator(InterpParams(v, self._a), self._h)
-        self._lift.reset(max(u_mm_s, 0.0))
-        self._lift.go_distance(distance_mm)
-        self._lifted = False
-        self._phase = -1  # a lift ends a pierce program
+        self._start_move(_Lift(distance_mm, v, self._a, self._h, u_mm_s), SUB_LIFT)
 
-    def end_lift(self) -> None:
-        """End a lift (its move or its hold)."""
-        self._lift = None
-        self._lifted = False
+    def start_leapfrog(self, enc_mm: float, sheet_mm: float, lift_mm: float, arrive_mm: float,
+                       rapid_s: float) -> Leapfrog:
+        """Start a leapfrog from ``enc_mm`` over a sheet at ``sheet_mm``; return it."""
+        settle = self.p.leapfrog_settle_s  # the plan leaves it for the final approach
+        leap = Leapfrog(plan(enc_mm, sheet_mm, lift_mm, arrive_mm, max(rapid_s - settle, 0.0),
+                             self._leap_v, self._leap_a), arrive_mm, self._h, settle)
+        self._start_move(leap, SUB_LEAPFROG)
+        return leap
+
+    def _start_move(self, move, sub: int) -> None:
+        self._move, self._move_sub = move, sub
+        self._phase = -1  # a planned move ends a pierce program
+
+    def end_move(self) -> None:
+        """End a planned move (running or held at its height)."""
+        self._move = None
+
+    def planned_velocity(self, enc_mm: float, gap_mm: float) -> float:
+        """Return the planned move's command this tick (its answers set); held once there.
+
+        ``gap_mm``: a valid reading, NaN when there is none (a rapid over a hole).
+        """
+        what = 'lift' if self._move_sub == SUB_LIFT else 'leapfrog'
+        self.sub = self._move_sub
+        move = self._move
+        v = move.velocity(enc_mm, gap_mm)  # a leapfrog holds its arrival level; a lift 0
+        if not move.done:
+            self.reason = f'{what}: moving'
+            return v
+        self.reason = f'{what}: at height, held'
+        self.in_position = self.ready_to_move = True
+        return v
 
     def command_hold(self, hold: bool, at_next_segment: bool, reason: str) -> None:
         """Hold (``hold``) or release, now or when the CNC's segment next changes."""
@@ -130,7 +157,7 @@ class CncPartner:
     def stop(self) -> None:
         """End programs and holds (the follow stops or faults); the CNC's values stay."""
         self._phase = -1
-        self.end_lift()
+        self.end_move()
         self._hold, self._hold_next = '', None
         self._corner = False
         self._edge_left_mm = 0.0
@@ -182,17 +209,13 @@ class CncPartner:
             self._inpos_target, self._inpos = target_mm, 0
         if settled and abs(gap_mm - target_mm) <= self._tol:
             self._inpos += 1
-        elif not self.lifting:
+        else:
             self._inpos = 0
         at_target = settled and self._inpos >= self._hold_ticks
         new_target = math.nan
         c = self.cnc
         moving = c.seq != 0 and c.actual_feed_mm_s > self.p.moving_feed_mm_s
-        if self._lift is not None:
-            self.sub, self.reason = SUB_LIFT, 'lift: moving up'
-        elif self._lifted:
-            self.sub, self.reason, self._holding = SUB_LIFT, 'lift: at height, held', True
-        elif self._phase >= 0:
+        if self._phase >= 0:
             new_target = self._pierce(at_target)
             if moving and self._phase in (_STAGE_APPROACH, _STAGE_DWELL, _CUT_APPROACH):
                 # the CNC did not wait for in position: ask it to hold, hold the height
@@ -203,10 +226,9 @@ class CncPartner:
             self.sub, self.reason, self._holding = SUB_HOLD, self._hold, True
         if self.sub == SUB_NONE and c.seq != 0:
             self._judge_motion(t_s, settled)
-        self.in_position = at_target and self._phase in (-1, _STAGE_DWELL, _THC_DELAY) or (
-            self._lifted)
-        self.ready_to_move = (self._lift is None and self._phase not in (
-            _STAGE_APPROACH, _STAGE_DWELL, _CUT_APPROACH) and (settled or self._lifted))
+        self.in_position = at_target and self._phase in (-1, _STAGE_DWELL, _THC_DELAY)
+        self.ready_to_move = settled and self._phase not in (
+            _STAGE_APPROACH, _STAGE_DWELL, _CUT_APPROACH)
         return new_target
 
     @property
@@ -288,14 +310,6 @@ class CncPartner:
         self.reason = f'THC delay: {self._count * self._h:.3f} s left'
         return math.nan
 
-    def lift_velocity(self) -> float:
-        """Return the lift's command this tick (>= 0); the lift holds once its move is done."""
-        lift = self._lift
-        v = max(lift.step(), 0.0)
-        if lift.is_finished():
-            self._lift, self._lifted = None, True
-        return v
-
     def answers(self, state: int, followed: bool, retracting: bool) -> dict:
         """Return the FollowStatus answers to the CNC and the CNC values used this tick."""
         c = self.cnc
@@ -315,3 +329,22 @@ class CncPartner:
                     cnc_commanded_feed_mm_s=c.commanded_feed_mm_s,
                     cnc_actual_feed_mm_s=c.actual_feed_mm_s,
                     cnc_segment_left_mm=c.segment_left_mm, cnc_edge_ahead_mm=c.edge_ahead_mm)
+
+
+class _Lift:
+    """A lift: a planned move up (the approach's planner, :mod:`..interp`), never down."""
+
+    def __init__(self, distance_mm: float, v_mm_s: float, a_mm_s2: float, h_s: float,
+                 u_mm_s: float) -> None:
+        self._it = Interpolator(InterpParams(v_mm_s, a_mm_s2), h_s)
+        self._it.reset(max(u_mm_s, 0.0))
+        self._it.go_distance(distance_mm)
+        self.done = False
+
+    def velocity(self, enc_mm: float, gap_mm: float) -> float:
+        """Return this tick's command (>= 0); 0 once there (held)."""
+        if self.done:
+            return 0.0
+        v = max(self._it.step(), 0.0)
+        self.done = self._it.is_finished()
+        return v

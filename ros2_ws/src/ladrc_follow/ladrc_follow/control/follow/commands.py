@@ -292,21 +292,55 @@ def _check_lift(view: CommandView, kw: dict) -> tuple[str, str, dict]:
     if not (is_real(v) and 0.0 <= v <= v_max):
         return (f'lift: velocity_mm_s {v!r} outside 0..{v_max:g} mm/s '
                 '(0: cnc.lift_velocity_mm_s)'), '', kw
-    if not _following(view.state) or view.state == LOCKING:
-        return f'lift: not following ({FollowState(view.state).name})', '', kw
+    if view.state not in (PID, LADRC):
+        return f'lift: not following in PID / LADRC ({FollowState(view.state).name})', '', kw
     kw = {'mode': int(mode), 'value_mm': float(value), 'velocity_mm_s': float(v)}
     return '', (f'lift {"to" if mode == LIFT_TO_HEIGHT else "by"} {value:g} mm, then held '
                 '(set_target or pierce resumes)'), kw
 
 
 def _apply_lift(c, st: int, kw: dict) -> None:
-    if not _following(st) or st == LOCKING:
+    if st not in (PID, LADRC):
         return
     value = kw['value_mm']
     if kw['mode'] == LIFT_TO_HEIGHT:
         gap = c._last_gap
         value = value - gap if gap == gap else 0.0  # never toward the sheet
     c._partner.start_lift(max(value, 0.0), kw['velocity_mm_s'], c._u)
+
+
+MAX_RAPID_MM = 100_000.0
+"""The longest rapid a leapfrog plans over (100 m)."""
+
+
+def _check_leapfrog(view: CommandView, kw: dict) -> tuple[str, str, dict]:
+    f, cnc, lim = view.follow, view.params.cnc, view.params.limits
+    vals = {k: kw.get(k) for k in TABLE['leapfrog'].args}
+    bad = [k for k, v in vals.items() if not is_real(v)]
+    if bad:
+        return f'leapfrog: {", ".join(bad)} must be finite numbers', '', kw
+    lift, length, feed, arrive = (vals[k] for k in TABLE['leapfrog'].args)
+    if not 0.0 < lift <= cnc.max_lift_mm:
+        return f'leapfrog: lift_mm {lift:g} outside 0 (excl.)..{cnc.max_lift_mm:g} mm', '', kw
+    if not f.min_target_gap_mm <= arrive <= min(lift, f.max_target_gap_mm):
+        return (f'leapfrog: arrive_height_mm {arrive:g} outside {f.min_target_gap_mm:g}..'
+                f'{min(lift, f.max_target_gap_mm):g} mm (at most lift_mm)'), '', kw
+    if not (0.0 < length <= MAX_RAPID_MM and 0.0 < feed <= 100.0 * lim.v_max_mm_s):
+        return (f'leapfrog: rapid_length_mm {length:g} (0..{MAX_RAPID_MM:g}) and rapid_feed_mm_s '
+                f'{feed:g} (0..{100.0 * lim.v_max_mm_s:g}) must be positive'), '', kw
+    if view.state not in (PID, LADRC):
+        return f'leapfrog: not following in PID / LADRC ({FollowState(view.state).name})', '', kw
+    kw = {k: float(v) for k, v in vals.items()}
+    return '', (f'leapfrog: up to {lift:g} mm over the {length:g} mm rapid, at {arrive:g} mm '
+                f'in {length / feed:.3g} s'), kw
+
+
+def _apply_leapfrog(c, st: int, kw: dict) -> None:
+    gap, enc = c._last_gap, c._last_enc
+    if st not in (PID, LADRC) or not (gap == gap and enc == enc):
+        return
+    c._partner.start_leapfrog(c._enc_now, enc - gap, kw['lift_mm'], kw['arrive_height_mm'],
+                              kw['rapid_length_mm'] / kw['rapid_feed_mm_s'])
 
 
 def _check_hold(view: CommandView, kw: dict) -> tuple[str, str, dict]:
@@ -374,6 +408,8 @@ TABLE: dict[str, Command] = {
                       _apply_pierce),
     'lift': Command(('mode', 'value_mm', 'velocity_mm_s'), _check_lift, _apply_lift),
     'hold': Command(('hold', 'at_next_segment', 'reason'), _check_hold, _apply_hold),
+    'leapfrog': Command(('lift_mm', 'rapid_length_mm', 'rapid_feed_mm_s', 'arrive_height_mm'),
+                        _check_leapfrog, _apply_leapfrog),
 }
 """Command name -> its table entry."""
 

@@ -101,6 +101,27 @@ class InputGate:
             return HOLD, 'the gap reading is not finite'
         return USABLE, ''
 
+    def screen_axis(self, tick: tuple) -> int:
+        """Screen a tick of a planned move (lift, leapfrog): the drive, the encoder, contact.
+
+        The reading is not needed to move up or to hold (a rapid crosses holes and kerfs, a lift
+        may leave the sensor's range); collision evidence still retracts.
+        """
+        t, gap, valid, _gstamp, enc, estamp, den, dfault, status = tick
+        if dfault or not den:
+            return DRIVE
+        if not (t - estamp <= self._stale_s and estamp <= t + self._h):
+            return self._verdict(FAULT, f'stale encoder: age {(t - estamp) * 1e3:.3g} ms '
+                                        f'(limit {self._stale_s * 1e3:.3g} ms)')
+        if not math.isfinite(enc):
+            return self._verdict(FAULT, f'encoder position not finite ({enc!r})')
+        if self.collision_evidence(gap, valid, status):
+            return self._verdict(COLLISION, f'collision during a planned move: gap reading '
+                                            f'{gap:.3f} mm, status {status}; retracting '
+                                            f'{self._retract_mm:g} mm')
+        self._miss_ticks = self._invalid_ticks = 0  # out of range up here is no miss-panel
+        return USABLE
+
     def screen(self, tick: tuple) -> int:
         """Screen a following tick: the verdict; ``gap_mm`` and ``fresh`` when :data:`USABLE`."""
         t, gap, valid, gstamp, enc, estamp, den, dfault, status = tick

@@ -43,7 +43,7 @@ from ..params import ControllerParams, check
 from ..pid import FollowPID
 from ..target_wave import TargetWave
 from . import input_gate as gate
-from .cnc import SUB_LIFT, CncPartner
+from .cnc import CncPartner
 from .commands import TABLE, CommandView, projected_state
 from .input_gate import InputGate
 from .limiter import OutputLimiter
@@ -155,6 +155,7 @@ class FollowController:
         self._dir = 1.0
         self._enc0 = 0.0
         self._enc_now = 0.0  # encoder position of this tick (soft travel limits)
+        self._reapproach = False  # a lift or leapfrog ended: approach at the next usable tick
 
     # ------------------------------------------------------------------ parameters
     def _install(self, b: PreparedSet) -> None:
@@ -322,15 +323,13 @@ class FollowController:
         self._closing = False
         self._limiter.uncap()
         self._partner.stop()
+        self._reapproach = False
 
     def _end_lift(self) -> None:
-        """End a lift: the follow approaches its target again from where the axis is."""
-        if not self._partner.lifting:
-            return
-        self._partner.end_lift()
-        gap, enc = self._last_gap, self._last_enc
-        if self._state in (PREINTERPOLATE, PID, LADRC_STATE) and gap == gap and enc == enc:
-            self._enter_approach(gap, enc, None)
+        """End a lift or a leapfrog: the next usable reading starts an approach from there."""
+        if self._partner.planned:
+            self._partner.end_move()
+            self._reapproach = True
 
     def _set_target(self, target: float) -> None:
         self._target = target
@@ -525,8 +524,28 @@ class FollowController:
                                f'(LOCKING timeout {self.follow_params.locking_timeout_s:g} s)')
         return self._ramp_to_zero()
 
+    def _tick_planned(self, tick: tuple) -> float:
+        """Run a tick of a lift or a leapfrog: the plan's command; the law is not stepped.
+
+        Only the drive, the encoder and collision evidence are screened (a rapid crosses
+        holes, a lift may leave the sensor's range); the follow resumes with an approach
+        (:meth:`_end_lift`).
+        """
+        ig = self._input_gate
+        verdict = ig.screen_axis(tick)
+        if verdict != gate.USABLE:
+            if verdict == gate.DRIVE:
+                return self._drive_fault(tick[7])
+            return self._fault(ig.reason, verdict == gate.COLLISION)
+        gap = tick[1] if (tick[2] and not tick[8]) else math.nan
+        u = self._limit(self._partner.planned_velocity(tick[4], gap))
+        self._source = SOURCE_NONE
+        return u
+
     def _tick_following(self, tick: tuple) -> float:
         """PREINTERPOLATE, PID, LADRC: the input gate, a due gradient, the edge guard, the law."""
+        if self._partner.planned:
+            return self._tick_planned(tick)
         ig = self._input_gate
         verdict = ig.screen(tick)
         if verdict != gate.USABLE:
@@ -537,6 +556,9 @@ class FollowController:
                 return self._drive_fault(tick[7])
             return self._fault(ig.reason, verdict == gate.COLLISION)
         gap, enc = ig.gap_mm, tick[4]
+        if self._reapproach:  # after a lift or a leapfrog: from the gap as it is now
+            self._reapproach = False
+            self._enter_approach(gap, enc, None)
         if self._gradients and self._gradients[0][0] <= self._tick:
             _, gt, gv, ga = self._gradients.pop(0)
             self._target = gt
@@ -622,12 +644,7 @@ class FollowController:
         if new_target == new_target:  # a pierce stage (checked against the limits at accept)
             self._set_target(new_target)
             st = self._state
-        if p.sub == SUB_LIFT and not p.holding:
-            v = p.lift_velocity()
-            if st == PREINTERPOLATE:
-                return self._move_up(v, enc)
-            self._override = v
-        elif p.holding:
+        if p.holding:
             if st == PREINTERPOLATE:
                 return self._hold_up_only()
             if self._override != self._override:  # the edge guard's own override goes first
