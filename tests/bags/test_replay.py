@@ -194,8 +194,10 @@ def test_event_fields_map_to_the_command_arguments():
     for kind, name in KIND_NAMES.items():
         if name == 'parameters':
             continue
-        text = ('{"heights_mm": [3.0], "dwell_s": [0.2], "thc_delay_s": 0.1}'
-                if name == 'pierce' else ev.text)  # the CNC's pierce carries its stages
+        text = {  # the CNC's pierce and leapfrog carry their arguments as JSON too
+            'pierce': '{"heights_mm": [3.0], "dwell_s": [0.2], "thc_delay_s": 0.1}',
+            'leapfrog': '{"lift_mm": 8.0, "rapid_length_mm": 100.0, "rapid_feed_mm_s": 500.0}',
+        }.get(name, ev.text)
         got, kwargs = event_command(replace(ev, kind=kind, text=text))
         assert got == name
         assert set(kwargs) == set(COMMANDS[name])
