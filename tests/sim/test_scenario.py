@@ -64,7 +64,15 @@ def test_defaults_and_event_sorting():
     assert sc.duration_s == 1.0 and isinstance(sc.duration_s, float)
     assert set(COMMANDS) == {'start_follow', 'set_target', 'stop_follow', 'reset_fault',
                              'machining', 'height_compensation', 'gradient_follow',
-                             'target_wave'}
+                             'target_wave', 'pierce', 'lift', 'hold', 'leapfrog'}
+    pierce = scenario_from_dict({'name': 'p', 'duration_s': 1, 'timeline': [
+        {'t_s': 0.0, 'do': 'pierce', 'heights_mm': [3, 2.5], 'dwell_s': [0.1, 0.1],
+         'cut_gap_mm': 1}]})
+    assert pierce.timeline[0].args == {'heights_mm': (3.0, 2.5), 'dwell_s': (0.1, 0.1),
+                                       'cut_gap_mm': 1.0, 'thc_delay_s': 0.0}
+    with pytest.raises(ScenarioError, match='heights_mm: expected a list of numbers'):
+        scenario_from_dict({'name': 'p', 'duration_s': 1, 'timeline': [
+            {'t_s': 0.0, 'do': 'pierce', 'heights_mm': 3, 'dwell_s': [0.1], 'cut_gap_mm': 1}]})
     wave = scenario_from_dict({'name': 'w', 'duration_s': 1, 'timeline': [
         {'t_s': 0.0, 'do': 'start_follow', 'target_gap_mm': 1},
         {'t_s': 0.2, 'do': 'target_wave', 'amp_mm': 0.1, 'freq_hz': 5}]})

@@ -252,6 +252,8 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
                     c_command(name, **a)
                     if name in ('start_follow', 'set_target'):
                         target = a['target_gap_mm']
+                    elif name == 'pierce':  # the follow's target once the pierce is done
+                        target = a['cut_gap_mm']
                     elif name == 'stop_follow':
                         target = math.nan
                         gradient = []

@@ -58,6 +58,18 @@ COMMANDS: dict[str, dict[str, tuple]] = {
                     'freq_hz': (float, REQUIRED, 0.0, 100.0),
                     'freq_end_hz': (float, 0.0, 0.0, 100.0),
                     'duration_s': (float, 0.0, 0.0, 600.0)},
+    # the CNC interface (docs/interfaces.md, "CNC interface"); the controller checks the rest
+    'pierce': {'heights_mm': (tuple, REQUIRED, None, None),
+               'dwell_s': (tuple, REQUIRED, None, None),
+               'cut_gap_mm': (float, REQUIRED, 0.0, 20.0), 'thc_delay_s': (float, 0.0, 0.0, 60.0)},
+    'lift': {'mode': (int, 0, None, None), 'value_mm': (float, REQUIRED, 0.0, 500.0),
+             'velocity_mm_s': (float, 0.0, 0.0, None)},
+    'hold': {'hold': (bool, REQUIRED, None, None), 'at_next_segment': (bool, False, None, None),
+             'reason': (str, '', None, None)},
+    'leapfrog': {'lift_mm': (float, REQUIRED, 0.0, 500.0),
+                 'rapid_length_mm': (float, REQUIRED, 0.0, None),
+                 'rapid_feed_mm_s': (float, REQUIRED, 0.0, None),
+                 'arrive_height_mm': (float, REQUIRED, 0.0, 20.0)},
 }
 WAVE_KINDS = ('sine', 'chirp', 'square')
 # Events acting on the simulated world (handled by the runner).
@@ -134,7 +146,7 @@ def _type_name(v: Any) -> str:
 
 
 def _coerce(value: Any, typ: Any, key: str) -> Any:
-    """Check ``value`` against a simple annotation (float, int, bool, str, X | None)."""
+    """Check ``value`` against a simple annotation (float, int, bool, str, tuple, X | None)."""
     args = typing.get_args(typ)
     if typing.get_origin(typ) in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
@@ -156,6 +168,11 @@ def _coerce(value: Any, typ: Any, key: str) -> Any:
         if not isinstance(value, str):
             raise _Fail(key, f'expected a string, got {_type_name(value)} ({value!r})')
         return value
+    if typ is tuple:  # a list of numbers (a pierce's stages)
+        if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(
+                v, (int, float)) for v in value):
+            raise _Fail(key, f'expected a list of numbers, got {_type_name(value)} ({value!r})')
+        return tuple(float(v) for v in value)
     raise TypeError(f'unsupported annotation {typ!r}')  # a bug in this module, not the file
 
 

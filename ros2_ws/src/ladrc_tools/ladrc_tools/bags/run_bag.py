@@ -54,22 +54,31 @@ def _last_seq(fresh: np.ndarray) -> np.ndarray:
     return np.maximum(np.cumsum(fresh) - 1, 0).astype(np.uint64)
 
 
-def _pack_by_text(packer: RowPacker, n: int, cols: Mapping[str, Any], key: str,
-                  texts: Any) -> list[bytes]:
-    """Pack ``n`` rows whose string field ``key`` is ``texts[i]`` (one packer per text)."""
+def _pack_by_text(packer: RowPacker, n: int, cols: Mapping[str, Any],
+                  texts: Mapping[str, Any]) -> list[bytes]:
+    """Pack ``n`` rows whose string fields ``texts[key][i]`` vary (one packer per set of texts).
+
+    ``texts``: string field -> its per-row values (None: the field is not there).
+    """
     rows = packer.pack(n, cols)
-    if texts is None:
+    given = {k: v.tolist() if isinstance(v, np.ndarray) else list(v)
+             for k, v in texts.items() if v is not None}
+    if not given:
         return rows
-    texts = np.asarray(texts, dtype=object)
-    for text in set(texts.tolist()) - {'', None}:
-        idx = np.flatnonzero(texts == text)
+    keys = list(given)
+    groups: dict[tuple, list[int]] = {}
+    for i, combo in enumerate(zip(*given.values(), strict=True)):
+        if any(c not in ('', None) for c in combo):
+            groups.setdefault(combo, []).append(i)
+    for combo, where in groups.items():
+        idx = np.asarray(where)
         sub = {k: (v[idx] if isinstance(v, np.ndarray) and v.shape == (n,) else v)
                for k, v in cols.items()}
         strings = {k: v.decode('utf-8') for k, v in packer.texts.items()}
-        strings[key] = str(text)
-        for i, row in zip(idx.tolist(), RowPacker(packer.msgtype, packer.store,
-                                                  strings).pack(idx.size, sub),
-                          strict=True):
+        strings.update({k: '' if c is None else str(c) for k, c in zip(keys, combo,
+                                                                        strict=True)})
+        for i, row in zip(where, RowPacker(packer.msgtype, packer.store,
+                                           strings).pack(idx.size, sub), strict=True):
             rows[i] = row
     return rows
 
@@ -151,8 +160,7 @@ def _sample_rows(s: _Series, result: Any, store: Any) -> tuple[list[bytes], list
         RowPacker('ladrc_msgs/msg/AxisFeedback', store, frame), s.n, {
             'stamp_s': s.t, 'seq': s.enc_seq, 'position_mm': s.encoder,
             'velocity_mm_s': np.nan_to_num(enc_vel), 'drive_enabled': s.enabled,
-            'drive_fault': s.fault}, 'fault_reason',
-        np.where(s.fault, DRIVE_FAULT_REASON, ''))
+            'drive_fault': s.fault}, {'fault_reason': np.where(s.fault, DRIVE_FAULT_REASON, '')})
     return cap_rows, fb_rows
 
 
@@ -199,7 +207,8 @@ def _status_rows(s: _Series, store: Any) -> list[bytes]:
             kind = packer.dtype[key].kind
             cols[key] = (values if kind == 'f'
                          else np.nan_to_num(values).astype(packer.dtype[key]))
-    return _pack_by_text(packer, s.n, cols, 'fault_reason', s.internals.get('fault_reason'))
+    return _pack_by_text(packer, s.n, cols, {k: s.internals.get(k)
+                                             for k in ('fault_reason', 'hold_reason')})
 
 
 def _truth_rows(s: _Series, result: Any, store: Any) -> list[bytes]:
