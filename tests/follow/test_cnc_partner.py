@@ -393,3 +393,18 @@ def test_leapfrog_stops_descending_where_the_sheet_is_higher_than_at_the_start()
     leapfrog_run(loop, 0.6)
     gap = np.array(loop.gap[i0:])
     assert gap.min() > 0.9 and gap[-1] >= 3.0 - 0.05  # by the reading, not the start's level
+
+
+def test_going_down_is_limited_apart_from_going_up():
+    p = ControllerParams()
+    slow_down = p.replace(limits=replace(p.limits, v_down_max_mm_s=5.0))
+    loop, _ = following(slow_down)
+    c = loop.c
+    assert c.command('set_target', target_gap_mm=0.6)[0]  # down, by the law (< 1 mm change)
+    i0 = loop.i
+    loop.run(600)
+    assert min(loop.u[i0:]) >= -5.0 - 1e-9 and min(loop.u[i0:]) < -4.0
+    assert c.command('set_target', target_gap_mm=1.4)[0]  # up: the full speed
+    i1 = loop.i
+    loop.run(600)
+    assert max(loop.u[i1:]) > 10.0

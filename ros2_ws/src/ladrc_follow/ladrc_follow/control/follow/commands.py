@@ -95,8 +95,8 @@ def _apply_start(c, st: int, kw: dict) -> None:
         c._lock_ticks = 0
         c._lock_ok = False
     elif _following(st):
-        c._set_target(kw['target_gap_mm'])
         c._end_lift()
+        c._set_target(kw['target_gap_mm'])
 
 
 def _check_stop(view: CommandView, kw: dict) -> tuple[str, str, dict]:
@@ -124,8 +124,8 @@ def _check_set_target(view: CommandView, kw: dict) -> tuple[str, str, dict]:
 
 def _apply_set_target(c, st: int, kw: dict) -> None:
     if _following(st):
-        c._set_target(kw['target_gap_mm'])
         c._end_lift()  # a new target ends a lift: approached from where the axis is
+        c._set_target(kw['target_gap_mm'])
 
 
 def _check_reset(view: CommandView, kw: dict) -> tuple[str, str, dict]:
@@ -272,13 +272,13 @@ def _check_pierce(view: CommandView, kw: dict) -> tuple[str, str, dict]:
 def _apply_pierce(c, st: int, kw: dict) -> None:
     if st == FAULT:
         return
+    c._end_lift()  # (first: the approach then starts from where the axis is)
     first = c._partner.start_pierce(kw['heights_mm'], kw['dwell_s'], kw['cut_gap_mm'],
                                     kw['thc_delay_s'])
     if st == IDLE:
         _apply_start(c, st, {'target_gap_mm': first})
     else:
         c._set_target(first)
-        c._end_lift()
 
 
 def _check_lift(view: CommandView, kw: dict) -> tuple[str, str, dict]:

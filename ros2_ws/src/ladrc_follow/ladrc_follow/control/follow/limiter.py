@@ -27,6 +27,7 @@ class OutputLimiter:
     def configure(self, limits, h_s: float) -> None:
         """Take ``ControllerParams.limits``; a running gradient cap stays (bounded by them)."""
         self.v_max_mm_s = limits.v_max_mm_s
+        self.v_down_mm_s = limits.v_down_max_mm_s  # toward the sheet (capped by v_max)
         self.du_max_mm_s = limits.a_max_mm_s2 * h_s
         self._z_min_mm, self._z_max_mm = limits.soft_z_min_mm, limits.soft_z_max_mm
         self._tau_z_s = limits.soft_z_tau_s
@@ -53,7 +54,7 @@ class OutputLimiter:
     def limit(self, u_c: float, u_prev: float, z_mm: float) -> tuple[float, int]:
         """Return the limited command and its ``LIMIT_*`` flags (``u_c`` finite)."""
         v, du = self.v_mm_s, self.du_mm_s
-        vd = v if v < self.down_cap_mm_s else self.down_cap_mm_s
+        vd = min(v, self.v_down_mm_s, self.down_cap_mm_s)
         us = v if u_c > v else (-vd if u_c < -vd else u_c)
         lo, hi = u_prev - du, u_prev + du
         u = lo if us < lo else (hi if us > hi else us)

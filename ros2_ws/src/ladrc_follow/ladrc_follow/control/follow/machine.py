@@ -339,6 +339,8 @@ class FollowController:
         old, self._target_eff = self._target_eff, eff
         self._wave = None  # any change of the target ends a test wave (it was checked on it)
         st = self._state
+        if self._reapproach:
+            return  # an approach starts at the next usable reading anyway (a lift ended)
         if (st == PID or st == LADRC_STATE) and abs(eff - old) > self._retarget:
             # seed comment in FS_PID_CONTROL: a large change is smoother interpolated
             self._enter_approach(self._last_gap, self._last_enc, None)
