@@ -135,8 +135,8 @@ class LimitParams:
     a_max_mm_s2: float = param(4000.0, 'mm/s²', 'acceleration limit: per-tick change a_max·h',
                                ge=10.0, le=1e6, seed='notes §3.4 UpdateLADRC')
     v_down_max_mm_s: float = param(150.0, 'mm/s', 'speed limit toward the sheet (slower going '
-                                   'down than up, as TF5200; capped by v_max_mm_s)', ge=0.1, le=1000.0,
-                                   seed='Beckhoff TF5200')
+                                   'down than up, as TF5200; capped by v_max_mm_s)', ge=0.1,
+                                   le=1000.0, seed='Beckhoff TF5200')
     soft_z_min_mm: float = param(-1000.0, 'mm', 'soft travel limit, bottom (encoder position): '
                                  'no command moves the axis below it, in any state',
                                  ge=-10000.0, le=10000.0)
