@@ -23,7 +23,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
 PACKAGES = ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
-PURE_FOLDERS = ('control', 'models', 'headless', 'bags', 'offline', 'commissioning')
+PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning')
 
 # top-level module -> rosdep key / ROS package name in package.xml
 DEPEND_KEY = {
@@ -34,6 +34,8 @@ DEPEND_KEY = {
     'matplotlib': 'python3-matplotlib',
     'rosbags': 'python3-rosbags-pip',
     'mcap': 'mcap-ros2-support',  # rosdistro's pip key whose package depends on mcap
+    'shapely': 'python3-shapely',
+    'ezdxf': 'python3-ezdxf',
     'ladrc_msgs': 'ladrc_msgs',
     'ladrc_contract': 'ladrc_contract',
     'std_msgs': 'std_msgs',

@@ -10,11 +10,13 @@ setup(
     packages=find_packages(exclude=['test']),
     # The scenario library ships inside the Python package (importlib.resources finds it) and
     # under share/ for users who look for it the ROS way.
-    package_data={'ladrc_sim.headless': ['scenarios/*.yaml']},
+    package_data={'ladrc_sim.headless': ['scenarios/*.yaml'],
+                  'ladrc_sim.job': ['jobs/*.yaml', 'jobs/*.dxf']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/scenarios', glob('ladrc_sim/headless/scenarios/*.yaml')),
+        ('share/' + package_name + '/jobs', glob('ladrc_sim/job/jobs/*')),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

@@ -24,6 +24,7 @@ from .cli_commissioning import (
     _run_identify,
 )
 from .cli_common import EXIT_USAGE, CliError
+from .cli_job import _add_job, _run_job
 from .cli_offline import (
     _add_analyze,
     _add_export,
@@ -79,6 +80,9 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
     'calibrate': ('capacitive calibration: descend slowly to contact, retract, build, check '
                   'and grade the raw → gap table (cap_table.yaml, calibration.md/.json/.png)',
                   _add_calibrate, _run_calibrate),
+    'job': ('run a cutting job headless (sheet in XY, part program from DXF, the simulated '
+            'CNC): per-job figures; --compare a CNC-partner feature on and off; -o job.png',
+            _add_job, _run_job),
     'suite': ('run the scenario library for PID and LADRC variants; comparison table '
               "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
               _add_suite, _run_suite),

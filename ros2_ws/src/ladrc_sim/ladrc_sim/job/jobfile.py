@@ -1,0 +1,199 @@
+"""A job file: the sheet, the part program (DXF), the feeds and heights, the machine's limits.
+
+YAML, one mapping (docs/job-world.md has the keys): ``name``, ``description``, ``dxf`` (relative
+to the job file), ``sheet`` (``width_mm``, ``height_mm``, ``surface``: models/sheet_xy.py
+``SurfaceParams``), ``cut`` (``kerf_mm``, ``lead_in_mm``, ``micro_joint_mm``,
+``micro_joints_per_part``), ``cnc`` (job/cnc.py ``CncSettings``), ``controller`` (parameter
+overrides of the follow controller, ``name: value``), ``sensor`` (models/sensor.py
+``SensorParams``), ``tip_parts`` and ``tip_rise_mm`` (parts that tip up when cut free),
+``start_xy`` and ``start_height_mm``, ``seed``, and ``limits`` (where the job's geometry makes
+the safety bar impossible: the bound that proves it, docs/job-world.md). Every problem is one
+line naming the file and the key (:class:`JobError`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+import math
+from pathlib import Path
+import typing
+from typing import Any
+
+from shapely.geometry import box
+import yaml
+
+from ..models.axis import ParamError
+from ..models.sensor import SensorParams
+from ..models.sheet_xy import SurfaceParams
+from .cnc import CncSettings
+from .program import Program, ProgramError, load_program
+
+
+class JobError(ValueError):
+    """A job file is malformed; the message is one line naming the file and the key."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """A loaded job file."""
+
+    path: Path
+    name: str
+    description: str
+    dxf: Path
+    width_mm: float
+    height_mm: float
+    surface: SurfaceParams
+    kerf_mm: float
+    lead_in_mm: float
+    micro_joint_mm: float
+    micro_joints_per_part: int
+    cnc: CncSettings
+    controller: dict[str, Any]
+    sensor: SensorParams
+    tip_parts: tuple[int, ...] = ()
+    tip_rise_mm: float = 3.0
+    start_xy: tuple[float, float] = (0.0, 0.0)
+    start_height_mm: float = 10.0
+    seed: int = 1
+    limits: dict[str, Any] = field(default_factory=dict)
+
+    def plate(self):
+        """Return the plate's outline (a rectangle from the origin)."""
+        return box(0.0, 0.0, self.width_mm, self.height_mm)
+
+    def program(self) -> Program:
+        """Return the job's part program (read from its DXF once per job object)."""
+        cached = self.__dict__.get('_program')
+        if cached is not None:
+            return cached
+        try:
+            program = load_program(self.dxf, kerf_mm=self.kerf_mm, lead_in_mm=self.lead_in_mm,
+                                   micro_joint_mm=self.micro_joint_mm,
+                                   micro_joints_per_part=self.micro_joints_per_part,
+                                   sheet_mm=(self.width_mm, self.height_mm))
+        except ProgramError as exc:
+            raise JobError(f'{self.path}: {exc}') from None
+        object.__setattr__(self, '_program', program)  # a frozen job: its program, once
+        return program
+
+    def time_budget_s(self, program: Program) -> float:
+        """Return a generous bound of the job's time (its run stops there, unfinished)."""
+        c = self.cnc
+        cut = sum(k.length_mm + 50.0 for k in program.contours) / c.feed_mm_s
+        pierce = len(program.contours) * (sum(c.pierce_dwell_s) + c.thc_delay_s + 2.0)
+        rapid = len(program.contours) * (math.hypot(self.width_mm, self.height_mm)
+                                         / c.rapid_mm_s + 1.0)
+        return 2.0 * (cut + pierce + rapid) + 10.0
+
+    def with_changes(self, cnc: dict[str, Any] | None = None,
+                     controller: dict[str, Any] | None = None) -> Job:
+        """Return the job with CNC settings or controller parameters changed (a feature off)."""
+        return replace(self, cnc=replace(self.cnc, **(cnc or {})),
+                       controller={**self.controller, **(controller or {})})
+
+
+def _section(cls: type, data: Any, where: str) -> Any:
+    """Build dataclass ``cls`` from a mapping: unknown keys, types and ranges are one line."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise JobError(f'{where}: must be a mapping')
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise JobError(f'{where}.{unknown[0]}: unknown key (allowed: {", ".join(sorted(names))})')
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for k, v in data.items():
+        tp = hints[k]
+        origin = typing.get_origin(tp)
+        if origin is tuple:
+            if not isinstance(v, list) or any(isinstance(x, bool) or not isinstance(
+                    x, (int, float)) for x in v):
+                raise JobError(f'{where}.{k}: expected a list of numbers, got {v!r}')
+            v = tuple(float(x) for x in v)
+        elif tp is float:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise JobError(f'{where}.{k}: expected a number, got {v!r}')
+            v = float(v)
+        elif tp is int and (isinstance(v, bool) or not isinstance(v, int)):
+            raise JobError(f'{where}.{k}: expected an integer, got {v!r}')
+        elif tp is bool and not isinstance(v, bool):
+            raise JobError(f'{where}.{k}: expected true or false, got {v!r}')
+        kwargs[k] = v
+    try:
+        return cls(**kwargs)
+    except ParamError as exc:
+        raise JobError(f'{where}.{exc.key}: {exc.reason}') from None
+    except (TypeError, ValueError) as exc:
+        raise JobError(f'{where}: {exc}') from None
+
+
+_TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
+        'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'seed', 'limits')
+
+
+def load_job(path: str | Path) -> Job:
+    """Read and check a job file; raise :class:`JobError` (one line) if it is unusable."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as exc:
+        raise JobError(f'{path}: cannot read: {exc.strerror or exc}') from None
+    except yaml.YAMLError as exc:
+        raise JobError(f'{path}: not YAML: {" ".join(str(exc).split())[:120]}') from None
+    if not isinstance(data, dict):
+        raise JobError(f'{path}: a job file is a mapping of keys')
+    unknown = sorted(set(data) - set(_TOP))
+    if unknown:
+        raise JobError(f'{path}: {unknown[0]}: unknown key (allowed: {", ".join(_TOP)})')
+    for req in ('name', 'dxf', 'sheet'):
+        if req not in data:
+            raise JobError(f'{path}: {req}: missing')
+    sheet = data['sheet']
+    if not isinstance(sheet, dict):
+        raise JobError(f'{path}: sheet: must be a mapping')
+    w, h = sheet.get('width_mm'), sheet.get('height_mm')
+    for k, v in (('width_mm', w), ('height_mm', h)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 10.0 <= v <= 10000.0:
+            raise JobError(f'{path}: sheet.{k}: a number of 10..10000 mm, got {v!r}')
+    extra = sorted(set(sheet) - {'width_mm', 'height_mm', 'surface'})
+    if extra:
+        raise JobError(f'{path}: sheet.{extra[0]}: unknown key')
+    cut = data.get('cut') or {}
+    if not isinstance(cut, dict):
+        raise JobError(f'{path}: cut: must be a mapping')
+    kerf = cut.get('kerf_mm', 0.2)
+    if isinstance(kerf, bool) or not isinstance(kerf, (int, float)) or not 0.0 <= kerf <= 5.0:
+        raise JobError(f'{path}: cut.kerf_mm: a number of 0..5 mm, got {kerf!r}')
+    extra = sorted(set(cut) - {'kerf_mm', 'lead_in_mm', 'micro_joint_mm',
+                               'micro_joints_per_part'})
+    if extra:
+        raise JobError(f'{path}: cut.{extra[0]}: unknown key')
+    controller = data.get('controller') or {}
+    if not isinstance(controller, dict):
+        raise JobError(f'{path}: controller: a mapping of parameter: value')
+    dxf = path.parent / str(data['dxf'])
+    if not dxf.is_file():
+        raise JobError(f'{path}: dxf: {dxf} does not exist')
+    tips = data.get('tip_parts') or []
+    if not isinstance(tips, list) or any(isinstance(x, bool) or not isinstance(x, int)
+                                         for x in tips):
+        raise JobError(f'{path}: tip_parts: a list of part indices')
+    start = data.get('start_xy', [0.0, 0.0])
+    if not (isinstance(start, list) and len(start) == 2):
+        raise JobError(f'{path}: start_xy: [x, y] in mm')
+    return Job(path=path, name=str(data['name']), description=str(data.get('description', '')),
+               dxf=dxf, width_mm=float(w), height_mm=float(h),
+               surface=_section(SurfaceParams, sheet.get('surface'), f'{path}: sheet.surface'),
+               kerf_mm=float(kerf), lead_in_mm=float(cut.get('lead_in_mm', 3.0)),
+               micro_joint_mm=float(cut.get('micro_joint_mm', 0.0)),
+               micro_joints_per_part=int(cut.get('micro_joints_per_part', 0)),
+               cnc=_section(CncSettings, data.get('cnc'), f'{path}: cnc'),
+               controller=dict(controller),
+               sensor=_section(SensorParams, data.get('sensor'), f'{path}: sensor'),
+               tip_parts=tuple(tips), tip_rise_mm=float(data.get('tip_rise_mm', 3.0)),
+               start_xy=(float(start[0]), float(start[1])),
+               start_height_mm=float(data.get('start_height_mm', 10.0)),
+               seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}))

@@ -1,0 +1,193 @@
+"""A cutting job, headless: the CNC runs the program, the controller follows, the sheet is cut.
+
+Order of one tick ``i`` (``t = i h``, the scenario runner's convention): the CNC steps (XY, its
+commands, its motion sample every cycle); the sheet under the nozzle gives the sensor its gap
+(to the surface under the nozzle's centre) and its coverage (the nozzle face over material),
+and the true gap (to the highest material under the face); the controller steps on the
+reading, the encoder and the CNC's sample; the axis integrates the command; the beam lays its
+kerf; a contour cut to its end drops its region (or tips it up, ``tip_parts``).
+
+Duck-typed controller, as the scenario runner's: ``step(tick, cnc)``, ``command(name, **kw)``
+and ``internals()`` (``FollowController``). Same job + seed -> identical series.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import time
+from typing import Any
+
+from ladrc_contract.codes import FollowState, Segment, SubState
+from ladrc_contract.tick import TickInput
+import numpy as np
+
+from ..models.axis import H_S, Axis, AxisParams
+from ..models.sensor import Sensor
+from ..models.sheet_xy import SheetXY
+from .cnc import Cnc
+
+KERF_STEP_MM = 0.2
+"""The beam lays its kerf every this much of path (finer than the raster's 0.25 mm cells)."""
+
+SERIES = ('t_s', 'x_mm', 'y_mm', 'nozzle_mm', 'true_gap_mm', 'reading_mm', 'coverage',
+          'command_mm_s', 'state', 'substate', 'segment', 'contour', 'beam', 'target_gap_mm',
+          'feed_mm_s', 'commanded_feed_mm_s')
+
+
+@dataclass
+class JobResult:
+    """The series of a job run, what the CNC did, and the per-job figures."""
+
+    name: str
+    series: dict[str, np.ndarray]
+    figures: dict[str, Any]
+    cnc_log: Any
+    wall_s: float
+    events: list[tuple[int, str, dict]] = field(default_factory=list)  # (tick, command, args)
+
+
+def run_job(job: Any, controller: Any, *, max_s: float | None = None) -> JobResult:
+    """Run ``job`` (:class:`~.jobfile.Job`) with ``controller``; return its :class:`JobResult`."""
+    h = H_S
+    program = job.program()
+    sheet = SheetXY(job.plate(), job.surface, nozzle_diameter_mm=job.sensor.nozzle_diameter_mm)
+    budget_s = max_s if max_s is not None else job.time_budget_s(program)
+    n = int(budget_s / h)
+    rng = np.random.default_rng(job.seed)
+    sensor = Sensor(job.sensor, n, h, rng)
+    x0, y0 = job.start_xy
+    axis = Axis(AxisParams(), sheet.z_mm(x0, y0) + job.start_height_mm, h)
+    events: list[tuple[int, str, dict]] = []
+    tick_i = 0
+
+    def command(name: str, **kw: Any) -> tuple[bool, str]:
+        events.append((tick_i, name, kw))
+        return controller.command(name, **kw)
+
+    cnc = Cnc(program, job.cnc, command, h, (x0, y0), sheet.void_ahead_mm)
+    cols = {k: np.full(n, np.nan) for k in SERIES}
+    answers: dict[str, Any] = controller.internals()
+    kerf_from: tuple[float, float] | None = None
+    tips = set(job.tip_parts)
+    c_step, c_internals = controller.step, controller.internals
+    last = 0
+    end_tick = -1  # the tick the CNC finished or aborted
+    wall0 = time.perf_counter()
+    for i in range(n):
+        tick_i = i
+        t = i * h
+        sample = cnc.step(answers)
+        x, y = cnc.x, cnc.y
+        for k in cnc.cut_done:  # a contour cut to its end: its region drops (or tips)
+            c = program.contours[k]
+            if c.part in tips and not c.inner:
+                sheet.tip(c.region, job.tip_rise_mm)
+            else:
+                sheet.drop(c.region)
+        z = axis.position_mm
+        sensed, true_gap = sheet.under_face(x, y, z)
+        cov = sheet.coverage(x, y)
+        reading, valid, _ = sensor.measure(i, sensed, cov)
+        collision = true_gap <= 0.0  # the nozzle touches material: the sensor shorts
+        if collision:
+            valid = False
+        status = 0 if valid else (2 if collision else 1)
+        u = c_step(TickInput(t, reading, valid, t, z, t, True, False, status), sample)
+        answers = c_internals()
+        axis.step(u, True, False)
+        if cnc.beam and cnc.segment == int(Segment.CUT):  # the kerf, as it is cut
+            if kerf_from is None:
+                kerf_from = (x, y)
+            elif math.hypot(x - kerf_from[0], y - kerf_from[1]) >= KERF_STEP_MM:
+                sheet.lay_kerf(kerf_from[0], kerf_from[1], x, y, job.kerf_mm)
+                kerf_from = (x, y)
+        elif kerf_from is not None:
+            sheet.lay_kerf(kerf_from[0], kerf_from[1], x, y, job.kerf_mm)
+            kerf_from = None
+        row = (t, x, y, z, true_gap, reading, cov, u, answers['state'], answers['substate'],
+               cnc.segment, cnc.contour, cnc.beam, answers['target_gap_mm'],
+               cnc.move.v if cnc.move is not None else 0.0, cnc.commanded_feed)
+        for key, value in zip(SERIES, row, strict=True):
+            cols[key][i] = value
+        last = i
+        if (cnc.log.finished or cnc.log.aborted) and end_tick < 0:
+            end_tick = i
+        if end_tick >= 0 and i - end_tick >= 20 and answers['velocity_mm_s'] == 0.0:
+            break  # the end, once the axis stands (a retract, a ramp down ran to its end)
+    else:
+        if not cnc.log.finished:
+            cnc.log.aborted = (cnc.log.aborted
+                               or f'not done within its time budget ({budget_s:g} s)')
+    wall = time.perf_counter() - wall0
+    series = {k: v[:last + 1] for k, v in cols.items()}
+    lock_ratio = getattr(getattr(controller, 'params', None), 'cnc', None)
+    lock_ratio = lock_ratio.corner_lock_ratio if lock_ratio is not None else 0.8
+    return JobResult(job.name, series, job_figures(series, h, cnc.log, len(program.contours),
+                                                   lock_ratio), cnc.log, wall, events)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Return the (start, stop) index pairs of the True runs of ``mask``."""
+    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=True))
+
+
+CORNER_AFTER_S = 0.05
+"""A corner's excursion is counted until this long after the feed is back."""
+
+
+def job_figures(series: dict[str, np.ndarray], h_s: float, log: Any, n_contours: int,
+                corner_ratio: float = 0.8) -> dict[str, Any]:
+    """Per-job figures: times, pierces, holds, faults, contacts, min true gap per contour.
+
+    ``corner_max_down_mm``: the largest excursion of the nozzle below its target gap while
+    cutting at a corner (actual feed below ``corner_ratio`` x the commanded one, and
+    :data:`CORNER_AFTER_S` after), the figure corner lock is judged by.
+    """
+    seg = series['segment']
+    sub = series['substate'].astype(int)
+    state = series['state'].astype(int)
+    gap = series['true_gap_mm']
+    cutting = (seg == int(Segment.CUT)) & (series['beam'] > 0)
+    holds = {}
+    for s in (SubState.CORNER_LOCK, SubState.VOID_LOCK, SubState.HOLD, SubState.EDGE_AHEAD):
+        runs = _runs(sub == int(s))
+        holds[s.name.lower()] = {'count': len(runs),
+                                 'seconds': round(sum(b - a for a, b in runs) * h_s, 4)}
+    per_contour = {}
+    contour = series['contour'].astype(int)
+    for k in range(1, n_contours + 1):
+        m = cutting & (contour == k)
+        if m.any():
+            per_contour[k] = round(float(np.min(gap[m])), 4)
+    target = series['target_gap_mm']
+    ratio = gap[cutting] / target[cutting] if cutting.any() else np.array([np.nan])
+    cmd_feed = series['commanded_feed_mm_s']
+    slow = cutting & (series['feed_mm_s'] < corner_ratio * cmd_feed)
+    after = int(CORNER_AFTER_S / h_s)
+    corner = np.convolve(slow.astype(np.int8), np.ones(after + 1, dtype=np.int8))[:len(slow)]
+    corner = (corner > 0) & cutting
+    down = target[corner] - gap[corner]
+    faults = _runs(state == int(FollowState.FAULT))
+    contacts = _runs(gap <= 0.0)
+    return {
+        'job_s': round(len(seg) * h_s, 4),
+        'cutting_s': round(float(cutting.sum()) * h_s, 4),
+        'rapid_s': round(float((seg == int(Segment.RAPID)).sum()) * h_s, 4),
+        'pierce_s': round(float((seg == int(Segment.PIERCE)).sum()) * h_s, 4),
+        'pierces': log.pierces,
+        'holds': holds,
+        'faults': len(faults),
+        'contacts': len(contacts),
+        'min_true_gap_cutting_mm': round(float(np.nanmin(gap[cutting])), 4) if cutting.any()
+        else None,
+        'min_gap_over_target_cutting': round(float(np.nanmin(ratio)), 4),
+        'min_true_gap_per_contour_mm': per_contour,
+        'feed_hold_s': round(log.feed_hold_ticks * h_s, 4),
+        'corner_s': round(float(slow.sum()) * h_s, 4),
+        'corner_max_down_mm': round(float(np.max(down)), 4) if down.size else 0.0,
+        'finished': log.finished,
+        'aborted': log.aborted,
+    }

@@ -1,0 +1,116 @@
+"""``ladrc job``: run a cutting job headless (the job world), print its figures, draw it.
+
+``ladrc job JOB`` runs a job file (or a shipped job's name) with the simulated CNC and the
+follow controller; ``--off FEATURE`` switches a CNC-partner feature off, ``--compare FEATURE``
+runs the job with it on and off and reports the difference (docs/job-world.md). ``-o DIR``
+writes ``job.json`` and ``job.png`` (the sheet with the path coloured by gap error and by the
+controller's state, pierce points, every fault and hold marked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from .cli_common import CliError
+
+FEATURES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    # feature -> (CNC settings, controller parameters) that switch it off
+    'corner_lock': ({}, {'cnc.corner_lock': False}),
+    'edge_ahead': ({}, {'cnc.edge_ahead_hold_mm': 0.0}),
+    'leapfrog': ({'leapfrog': False}, {}),
+}
+
+
+def _add_job(p: argparse.ArgumentParser) -> None:
+    p.add_argument('job', help='job file (YAML) or the name of a shipped job')
+    p.add_argument('--off', action='append', default=[], choices=sorted(FEATURES),
+                   help='switch a CNC-partner feature off (repeatable)')
+    p.add_argument('--compare', choices=sorted(FEATURES),
+                   help='run with the feature on and off; report both and the difference')
+    p.add_argument('-o', '--output', help='folder for job.json and job.png (must not exist)')
+
+
+def shipped_jobs() -> dict[str, Path]:
+    """Return the shipped job files by name."""
+    from importlib.resources import files
+
+    folder = Path(str(files('ladrc_sim.job') / 'jobs'))
+    return {p.stem: p for p in sorted(folder.glob('*.yaml'))}
+
+
+def load(name: str) -> Any:
+    """Return the job of a path or a shipped name; CliError (one line) when unusable."""
+    from ladrc_sim.job.jobfile import JobError, load_job
+
+    path = Path(name)
+    if not path.exists():
+        shipped = shipped_jobs()
+        if name not in shipped:
+            raise CliError(f'{name}: no such job file or shipped job '
+                           f'(shipped: {", ".join(shipped) or "none"})')
+        path = shipped[name]
+    try:
+        job = load_job(path)
+        job.program()
+    except JobError as exc:
+        raise CliError(str(exc)) from None
+    return job
+
+
+def run(job: Any, off: list[str]) -> Any:
+    """Run ``job`` with the features in ``off`` switched off; return its JobResult."""
+    from ladrc_follow.analysis.gate import check_gate
+    from ladrc_follow.control.follow import FollowController
+    from ladrc_follow.control.params import ParameterError, params_from_dict
+    from ladrc_sim.job.runner import run_job
+
+    cnc: dict[str, Any] = {}
+    controller: dict[str, Any] = {}
+    for f in off:
+        cnc.update(FEATURES[f][0])
+        controller.update(FEATURES[f][1])
+    job = job.with_changes(cnc, controller)
+    try:
+        params = check_gate(params_from_dict(dict(job.controller)))
+    except ParameterError as exc:
+        raise CliError(f'{job.path}: controller: {" ".join(str(exc).split())}') from None
+    return run_job(job, FollowController(params))
+
+
+def _run_job(a: argparse.Namespace) -> int:
+    job = load(a.job)
+    out_dir = Path(a.output) if a.output else None
+    if out_dir is not None and out_dir.exists():
+        raise CliError(f'{out_dir} exists already: nothing is overwritten')
+    result = run(job, a.off)
+    out: dict[str, Any] = {'job': job.name, 'off': a.off, **result.figures,
+                           'wall_s': round(result.wall_s, 2)}
+    if a.compare:
+        other = run(job, a.off + [a.compare])
+        out = {'job': job.name, 'feature': a.compare, 'on': result.figures,
+               'off': other.figures, 'difference': compare(a.compare, result, other)}
+    if out_dir is not None:
+        out_dir.mkdir(parents=True)
+        (out_dir / 'job.json').write_text(json.dumps(out, indent=1, default=str) + '\n',
+                                          encoding='utf-8')
+        from .offline.job_report import draw_job
+
+        draw_job(job, result, out_dir / 'job.png')
+    print(json.dumps(out, default=str))
+    return 0
+
+
+def compare(feature: str, on: Any, off: Any) -> dict[str, Any]:
+    """Return the figures a feature is judged by, on and off (docs/job-world.md)."""
+    if feature == 'leapfrog':
+        saved = off.figures['job_s'] - on.figures['job_s']
+        return {'job_s_saved': round(saved, 4),
+                'job_s_saved_pct': round(100.0 * saved / off.figures['job_s'], 2)}
+    if feature == 'corner_lock':
+        return {'corner_max_down_mm_on': on.figures['corner_max_down_mm'],
+                'corner_max_down_mm_off': off.figures['corner_max_down_mm']}
+    return {'min_gap_over_target_on': on.figures['min_gap_over_target_cutting'],
+            'min_gap_over_target_off': off.figures['min_gap_over_target_cutting']}
