@@ -3,8 +3,10 @@
 ``ladrc job JOB`` runs a job file (or a shipped job's name) with the simulated CNC and the
 follow controller; ``--off FEATURE`` switches a CNC-partner feature off, ``--compare FEATURE``
 runs the job with it on and off and reports the difference (docs/job-world.md). ``-o DIR``
-writes ``job.json`` and ``job.png`` (the sheet with the path coloured by gap error and by the
-controller's state, pierce points, every fault and hold marked).
+writes ``job.json``, ``job.png`` (the sheet with the path coloured by gap error and by the
+controller's state, pierce points, every fault and hold marked) and ``bag/``: the run in the
+live layout (``ladrc replay`` reproduces it bit for bit; ``run/scenario`` holds the job file
+and its DXF).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import argparse
 import json
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 from .cli_common import CliError
 
@@ -30,7 +34,7 @@ def _add_job(p: argparse.ArgumentParser) -> None:
                    help='switch a CNC-partner feature off (repeatable)')
     p.add_argument('--compare', choices=sorted(FEATURES),
                    help='run with the feature on and off; report both and the difference')
-    p.add_argument('-o', '--output', help='folder for job.json and job.png (must not exist)')
+    p.add_argument('-o', '--output', help='folder for job.json, job.png and bag/ (must not exist)')
 
 
 def shipped_jobs() -> dict[str, Path]:
@@ -60,7 +64,7 @@ def load(name: str) -> Any:
     return job
 
 
-def run(job: Any, off: list[str]) -> Any:
+def run(job: Any, off: list[str], record_internals: bool = False) -> Any:
     """Run ``job`` with the features in ``off`` switched off; return its JobResult."""
     from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.follow import FollowController
@@ -77,7 +81,20 @@ def run(job: Any, off: list[str]) -> Any:
         params = check_gate(params_from_dict(dict(job.controller)))
     except ParameterError as exc:
         raise CliError(f'{job.path}: controller: {" ".join(str(exc).split())}') from None
-    return run_job(job, FollowController(params))
+    result = run_job(job, FollowController(params), record_internals=record_internals)
+    result.params = params
+    return result
+
+
+def write_bag(job: Any, result: Any, path: Path) -> None:
+    """Write a job run as a bag: the live layout, the job file and its DXF in run/scenario."""
+    from ladrc_follow.control.params import dump_params
+
+    from .bags.bag import write_run_bag
+
+    text = yaml.safe_dump({'job': job.path.read_text(encoding='utf-8'),
+                           'dxf': job.dxf.read_text(encoding='utf-8', errors='replace')})
+    write_run_bag(result.as_run(), path, dump_params(result.params), text)
 
 
 def _run_job(a: argparse.Namespace) -> int:
@@ -85,7 +102,7 @@ def _run_job(a: argparse.Namespace) -> int:
     out_dir = Path(a.output) if a.output else None
     if out_dir is not None and out_dir.exists():
         raise CliError(f'{out_dir} exists already: nothing is overwritten')
-    result = run(job, a.off)
+    result = run(job, a.off, record_internals=out_dir is not None)
     out: dict[str, Any] = {'job': job.name, 'off': a.off, **result.figures,
                            'wall_s': round(result.wall_s, 2)}
     if a.compare:
@@ -99,6 +116,7 @@ def _run_job(a: argparse.Namespace) -> int:
         from .offline.job_report import draw_job
 
         draw_job(job, result, out_dir / 'job.png')
+        write_bag(job, result, out_dir / 'bag')
     print(json.dumps(out, default=str))
     return 0
 

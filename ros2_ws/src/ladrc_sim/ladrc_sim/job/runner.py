@@ -30,7 +30,8 @@ from .cnc import Cnc
 KERF_STEP_MM = 0.2
 """The beam lays its kerf every this much of path (finer than the raster's 0.25 mm cells)."""
 
-SERIES = ('t_s', 'x_mm', 'y_mm', 'nozzle_mm', 'true_gap_mm', 'reading_mm', 'coverage',
+SERIES = ('t_s', 'x_mm', 'y_mm', 'nozzle_mm', 'true_gap_mm', 'reading_mm', 'reading_valid',
+          'coverage',
           'command_mm_s', 'state', 'substate', 'segment', 'contour', 'beam', 'target_gap_mm',
           'feed_mm_s', 'commanded_feed_mm_s')
 
@@ -45,10 +46,57 @@ class JobResult:
     cnc_log: Any
     wall_s: float
     events: list[tuple[int, str, dict]] = field(default_factory=list)  # (tick, command, args)
+    internals: dict[str, np.ndarray] | None = None  # the controller's status, every tick
+
+    def as_run(self, h_s: float = H_S) -> JobRun:
+        """Return the run in the scenario runner's result layout (a bag writer's input)."""
+        return JobRun(self, h_s)
 
 
-def run_job(job: Any, controller: Any, *, max_s: float | None = None) -> JobResult:
-    """Run ``job`` (:class:`~.jobfile.Job`) with ``controller``; return its :class:`JobResult`."""
+@dataclass(frozen=True)
+class _Command:
+    """A CNC command as a scenario timeline entry (the bag writer logs it as an event)."""
+
+    t_s: float
+    name: str
+    args: dict
+    is_command: bool = True
+
+
+class JobRun:
+    """A job's result with the attributes of ``headless.runner.RunResult`` a bag needs."""
+
+    def __init__(self, result: JobResult, h_s: float) -> None:
+        s = result.series
+        self.h_s = h_s
+        self.t_s = s['t_s']
+        self.reading_mm = s['reading_mm']
+        self.reading_valid = s['reading_valid'].astype(bool)
+        self.collision = s['true_gap_mm'] <= 0.0
+        self.encoder_mm = s['nozzle_mm']
+        self.nozzle_mm = s['nozzle_mm']
+        self.true_gap_mm = s['true_gap_mm']
+        self.sheet_mm = s['nozzle_mm'] - s['true_gap_mm']
+        self.coverage = s['coverage']
+        self.command_mm_s = s['command_mm_s']
+        self.target_gap_mm = s['target_gap_mm']
+        self.internals = result.internals
+        self.scenario = _Scenario(result.name, tuple(
+            _Command(k * h_s, name, dict(args)) for k, name, args in result.events))
+
+
+@dataclass(frozen=True)
+class _Scenario:
+    name: str
+    timeline: tuple
+
+
+def run_job(job: Any, controller: Any, *, max_s: float | None = None,
+            record_internals: bool = False) -> JobResult:
+    """Run ``job`` (:class:`~.jobfile.Job`) with ``controller``; return its :class:`JobResult`.
+
+    ``record_internals``: keep the controller's status of every tick (for a bag).
+    """
     h = H_S
     program = job.program()
     sheet = SheetXY(job.plate(), job.surface, nozzle_diameter_mm=job.sensor.nozzle_diameter_mm)
@@ -73,6 +121,7 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None) -> JobResu
     c_step, c_internals = controller.step, controller.internals
     last = 0
     end_tick = -1  # the tick the CNC finished or aborted
+    rows: list[dict] | None = [] if record_internals else None
     wall0 = time.perf_counter()
     for i in range(n):
         tick_i = i
@@ -105,7 +154,9 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None) -> JobResu
         elif kerf_from is not None:
             sheet.lay_kerf(kerf_from[0], kerf_from[1], x, y, job.kerf_mm)
             kerf_from = None
-        row = (t, x, y, z, true_gap, reading, cov, u, answers['state'], answers['substate'],
+        if rows is not None:
+            rows.append(answers)
+        row = (t, x, y, z, true_gap, reading, valid, cov, u, answers['state'], answers['substate'],
                cnc.segment, cnc.contour, cnc.beam, answers['target_gap_mm'],
                cnc.move.v if cnc.move is not None else 0.0, cnc.commanded_feed)
         for key, value in zip(SERIES, row, strict=True):
@@ -123,8 +174,12 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None) -> JobResu
     series = {k: v[:last + 1] for k, v in cols.items()}
     lock_ratio = getattr(getattr(controller, 'params', None), 'cnc', None)
     lock_ratio = lock_ratio.corner_lock_ratio if lock_ratio is not None else 0.8
+    internals = None
+    if rows:
+        internals = {k: np.array([r[k] for r in rows], dtype=object if isinstance(v, str)
+                                 else None) for k, v in rows[0].items()}
     return JobResult(job.name, series, job_figures(series, h, cnc.log, len(program.contours),
-                                                   lock_ratio), cnc.log, wall, events)
+                                                   lock_ratio), cnc.log, wall, events, internals)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
