@@ -178,3 +178,9 @@ def test_a_job_bag_replays_bit_for_bit(tmp_path):
     assert got['mismatches'] == 0 and got['internal_mismatch_ticks'] == 0
     assert {'pierce', 'leapfrog'} <= {e.name for e in rec.events}
     assert int(np.max(result.internals['cnc_seq'])) > 0  # the CNC's values went through
+    from ladrc_tools.bags.bag import open_bag
+    from ladrc_tools.offline.report import analyse
+
+    with open_bag(tmp_path / 'bag') as bag:
+        report, _ = analyse(bag)
+    assert report['holds']['pierce']['count'] >= 1 and report['holds']['retract']['count'] == 1

@@ -60,8 +60,12 @@ def _find_key(data: Any, key: str) -> float | None:
 
 REPORT_FIELDS = ('tick', 'stamp_s', 'state', 'target_gap_mm', 'td_x1_mm', 'followed',
                  'velocity_mm_s', 'u_unlimited_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3',
-                 'gap_mm', 'limit_flags', 'period_us', 'compute_us', 'input_age_us', 'overrun')
-"""The follow/status fields the report reads."""
+                 'gap_mm', 'limit_flags', 'period_us', 'compute_us', 'input_age_us', 'overrun',
+                 'substate')
+"""The follow/status fields the report reads (``substate``: bags of FollowStatus revision 2)."""
+HOLDS = {1: 'corner_lock', 2: 'void_lock', 3: 'pierce', 4: 'thc_delay', 5: 'lift',
+         6: 'leapfrog', 7: 'hold', 8: 'edge_ahead', 9: 'retract'}
+"""FollowStatus.SUB_* the report counts: episodes and time (docs/interfaces.md)."""
 TIMING = ('period_us', 'compute_us', 'input_age_us')
 
 
@@ -134,6 +138,8 @@ class _StatusPass:
         self.env: dict[str, Envelope] = {}
         self.first: dict[str, float] = {}
         self.overruns = 0
+        self.holds = {code: [0, 0] for code in HOLDS}  # SUB_* -> [episodes, ticks]
+        self.prev_sub = 0
         self.n_done = 0
         self.prev_rate = (math.nan, math.nan)  # last (t, true gap): the gap rate across slices
 
@@ -197,6 +203,15 @@ class _StatusPass:
         for k in TIMING:
             self.timing[k].add(st[k])
         self.overruns += int(np.count_nonzero(st['overrun']))
+        sub = st.get('substate')
+        if sub is not None and sub.size:
+            sub = sub.astype(int)
+            before = np.r_[self.prev_sub, sub[:-1]]
+            for code, acc in self.holds.items():
+                now = sub == code
+                acc[0] += int(np.count_nonzero(now & (before != code)))
+                acc[1] += int(np.count_nonzero(now))
+            self.prev_sub = int(sub[-1])
         self.n_done += t.size
 
     def flush(self, final: bool, latest_ns: int) -> None:
@@ -300,6 +315,8 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
                           else 'measured (follow/status gap_mm)'),
         'metrics': metrics.as_dict(),
         'timing': {**{k: run.timing[k].stats() for k in TIMING}, 'overruns': run.overruns},
+        'holds': {HOLDS[c]: {'count': n, 'seconds': round(k * run.first['h_s'], 4)}
+                  for c, (n, k) in run.holds.items() if n},
         'messages': dict(bag.message_counts),
         'messages_lost': int(sum(run.lost.values())),
         'messages_lost_by_topic': run.lost,
@@ -404,7 +421,12 @@ def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
     for k in ('period_us', 'compute_us', 'input_age_us'):
         s = report['timing'][k]
         lines.append(f'| {k} | {_fmt(s["p50"])} | {_fmt(s["p99"])} | {_fmt(s["max"])} |')
-    lines += ['', f'Overruns: {report["timing"]["overruns"]}', '', '## Plots', '']
+    lines += ['', f'Overruns: {report["timing"]["overruns"]}']
+    if report.get('holds'):
+        lines += ['', 'Sub-states (FollowStatus.substate): '
+                  + ', '.join(f'{name} {v["count"]}x, {v["seconds"]:g} s'
+                              for name, v in report['holds'].items())]
+    lines += ['', '## Plots', '']
     lines += [f'![{p[:-4]}]({p})' for p in pngs]
     return '\n'.join(lines) + '\n'
 
