@@ -1,39 +1,59 @@
 """A part program from a nest drawn in DXF, as a CAM makes it for a laser CNC.
 
-* **Reading** (ezdxf): LINE, ARC, CIRCLE, ELLIPSE, SPLINE, LWPOLYLINE (bulges), POLYLINE in
-  modelspace, flattened by ezdxf's path module within ``tolerance_mm``; other entities (text,
-  dimensions, hatches, blocks) are ignored and listed. ``$INSUNITS`` must say the units; a
-  drawing without them, or whose size is absurd for the sheet, is refused with one line.
-* **Chaining**: open pieces are joined end to end (either way round) into closed contours; a
-  chain that does not close is refused, naming where it is open.
-* **Nesting**: a contour inside an odd number of others is a hole of the smallest part
-  containing it; the others are parts (a part inside another part's hole is a part).
-* **Kerf compensation** on the scrap side (G42, the beam on the right of the travel): an outer
-  contour runs half a kerf outside the part, clockwise; a hole half a kerf inside it,
-  counter-clockwise. Round joins: the beam's centre goes round an outside corner on an arc.
-* **Lead-ins** from the scrap: into a hole from its inner point, onto an outline along the
-  outward normal of its longest edge (an edge whose lead-in stays on the sheet when the sheet
-  is given). **Micro-joints** (optional): beam-off gaps on outer contours.
-* **Order**: a part's holes before its outline; parts nearest next from the origin, holes
-  nearest next within a part.
+All lengths are millimetres once ``$INSUNITS`` has scaled the drawing.
+
+* **Reading** (ezdxf): LINE, ARC, CIRCLE, ELLIPSE, SPLINE, LWPOLYLINE (bulges) and 2D
+  POLYLINE in modelspace, flattened by ezdxf's path module to a chord error of at most
+  ``tolerance_mm``; other entities (text, dimensions, hatches, block inserts, 3D polylines) are
+  ignored and listed in ``Program.ignored``. ``$INSUNITS`` must name the units (mm, cm, m,
+  inches); a drawing without them, or whose size is absurd for the sheet, is refused.
+* **Chaining**: open pieces are joined end to end, either way round, where their ends meet
+  within ``max(tolerance_mm, 1e-6 x the drawing's size)``; a chain that does not close is
+  refused, naming its open ends. Contours of less than 1e-6 mm² are dropped.
+* **Nesting**: a contour inside an odd number of others is a hole of the smallest one around
+  it; the others are parts (a part in another part's hole is a part of its own). Contours that
+  cross each other are refused; a contour drawn twice over itself is cut once.
+* **Direction and kerf**: the laser convention, the part on the right of the travel (the better
+  edge of the cut): outlines clockwise, holes counter-clockwise, so the scrap is on the left of
+  the travel for both. The path runs half a kerf into the scrap (compensation to the left, G41
+  on a control that compensates itself): outside a part's outline, inside a hole.
+* **Lead-ins**, straight, from the scrap: into a hole from its pole (the centre of its largest
+  inscribed circle) to the nearest point of its path, perpendicular to it, shortened to fit a
+  small hole; onto an outline along the outward normal at the middle of its longest edge whose
+  lead-in clears the other parts (and keeps the nozzle on the sheet, when the sheet is given).
+* **Micro-joints** (optional): beam-off gaps spread evenly along each outline, none in its first
+  2 mm.
+* **Order**: a part's holes before its outline; parts nearest next from the origin, by the
+  pierce point of the contour each would cut first; holes nearest next within a part; a part
+  in another part's hole before that part.
+
+``Program.parts`` are in drawing order (of each outline's first entity in the modelspace).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import numbers
 from pathlib import Path
 
 import ezdxf
 from ezdxf import path as dxf_path
+from ezdxf.math import Vec3, fit_points_to_cad_cv
 import numpy as np
 import shapely
-from shapely.geometry import LinearRing, Point, Polygon
+from shapely.geometry import LinearRing, LineString, Point, Polygon
 from shapely.geometry.polygon import orient
+from shapely.ops import polylabel
 
 UNITS = {1: ('in', 25.4), 4: ('mm', 1.0), 5: ('cm', 10.0), 6: ('m', 1000.0)}
 """``$INSUNITS`` codes accepted: name and millimetres per unit."""
 SUPPORTED = ('LINE', 'ARC', 'CIRCLE', 'ELLIPSE', 'SPLINE', 'LWPOLYLINE', 'POLYLINE')
+MIN_AREA_MM2 = 1e-6      # less: a drawing artefact (a line drawn there and back), dropped
+MIN_LEAD_MM = 0.5        # the shortest lead-in tried onto an outline before giving up on clearance
+JOINT_FREE_MM = 2.0      # no micro-joint in the first 2 mm after the lead-in (the cut settles)
+SHEET_MARGIN_MM = 5.0    # a pierce keeps the 8 mm nozzle face on the sheet, plus 1 mm
+PIERCE_CLEAR_MM = 1.0    # a lead-in's distance to other parts beyond half a kerf (pierce crater)
 
 
 class ProgramError(ValueError):
@@ -44,12 +64,12 @@ class ProgramError(ValueError):
 class Contour:
     """One contour of the program, kerf-compensated, with its lead-in, in cut order."""
 
-    points_mm: np.ndarray      # (n, 2) closed path (first == last)
+    points_mm: np.ndarray      # (n, 2) closed path (first == last), read-only
     inner: bool                # a hole of a part (cut before the part's outline)
     part: int                  # index of its part in Program.parts
-    lead_in_mm: np.ndarray     # (m, 2) from the pierce point to points_mm[0]
-    region: Polygon            # what drops out once it is cut (the slug, or the part)
-    micro_joints: tuple[tuple[float, float], ...] = ()  # beam-off path intervals
+    lead_in_mm: np.ndarray     # (m >= 2, 2) from the pierce point to points_mm[0], read-only
+    region: Polygon            # what drops out once it is cut: the slug, or the part
+    micro_joints: tuple[tuple[float, float], ...] = ()  # beam-off (start, end) path distances
 
     @property
     def pierce_xy(self) -> tuple[float, float]:
@@ -59,219 +79,395 @@ class Contour:
     @property
     def length_mm(self) -> float:
         """Return the contour's path length."""
-        d = np.diff(self.points_mm, axis=0)
-        return float(np.hypot(d[:, 0], d[:, 1]).sum())
+        return _length(self.points_mm)
 
 
 @dataclass(frozen=True, eq=False)
 class Program:
     """A part program: the contours in cut order and the parts as drawn."""
 
-    source: str
-    units: str
+    source: str                # the DXF path as given
+    units: str                 # the drawing's units ('mm', 'cm', 'm', 'in')
     scale_to_mm: float
     contours: tuple[Contour, ...]
-    parts: tuple[Polygon, ...]
-    bounds_mm: tuple[float, float, float, float]
-    ignored: tuple[str, ...] = ()
+    parts: tuple[Polygon, ...]  # as drawn (no kerf), in drawing order
+    bounds_mm: tuple[float, float, float, float]  # of everything read (minx, miny, maxx, maxy)
+    ignored: tuple[str, ...] = ()  # entity types in the modelspace not read (sorted)
+
+
+def _length(points: np.ndarray) -> float:
+    d = np.diff(points, axis=0)
+    return float(np.hypot(d[:, 0], d[:, 1]).sum())
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+def _number(name: str, label: str, value: object, lo: float, hi: float, *,
+            open_low: bool = False) -> float:
+    """Return ``value`` as a float in [lo, hi] (or (lo, hi]); otherwise refuse it, one line."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        x = math.nan
+    if not (lo < x <= hi if open_low else lo <= x <= hi):  # NaN fails both
+        span = f'({lo:g}, {hi:g}]' if open_low else f'{lo:g}..{hi:g}'
+        raise ProgramError(f'{name}: {label} {value!r} outside {span} mm')
+    return x
+
+
+def _check_arguments(name: str, kerf_mm: float, lead_in_mm: float, micro_joint_mm: float,
+                     micro_joints_per_part: int, tolerance_mm: float,
+                     sheet_mm: tuple[float, float] | None) -> None:
+    """Refuse arguments out of range (NaN and non-numbers included) with one line."""
+    _number(name, 'kerf_mm', kerf_mm, 0.0, 5.0)
+    _number(name, 'lead_in_mm', lead_in_mm, 0.0, 50.0)
+    _number(name, 'tolerance_mm', tolerance_mm, 0.0, 1.0, open_low=True)
+    _number(name, 'micro_joint_mm', micro_joint_mm, 0.0, 50.0)
+    n = micro_joints_per_part
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or not 0 <= n <= 100:
+        raise ProgramError(f'{name}: micro_joints_per_part {n!r} is not a whole number in '
+                           '0..100')
+    if sheet_mm is not None:
+        try:
+            w, h = (float(s) for s in sheet_mm)
+        except (TypeError, ValueError):
+            w = h = math.nan
+        if not (0.0 < w < math.inf and 0.0 < h < math.inf):
+            raise ProgramError(f'{name}: sheet_mm {sheet_mm!r} is not (width, height) > 0 mm')
+
+
+def _read(path: str | Path, name: str):
+    """Return the ezdxf document of ``path``."""
+    if not Path(path).is_file():
+        raise ProgramError(f'{name}: no such file')
+    try:
+        return ezdxf.readfile(str(path))
+    except Exception as exc:  # whatever the reader trips on, the file is the problem
+        text = ' '.join(str(exc).split()) or type(exc).__name__
+        if 'not a DXF file' in text:
+            text = 'not a DXF file'
+        raise ProgramError(f'{name}: cannot be read as DXF: {text}') from None
+
+
+def _units(doc, name: str) -> tuple[int, str, float]:
+    """Return the ``$INSUNITS`` code, the units' name and millimetres per unit."""
+    try:
+        code = int(doc.header.get('$INSUNITS', 0))
+    except (TypeError, ValueError):
+        code = 0
+    if code not in UNITS:
+        what = 'missing' if code == 0 else 'not supported'
+        raise ProgramError(f'{name}: drawing units {what} ($INSUNITS={code}): set them to '
+                           'millimetres ($INSUNITS=4; or cm 5, m 6, inches 1)')
+    return code, *UNITS[code]
+
+
+def _flatten(e, step: float) -> np.ndarray:
+    """Return entity ``e`` as (n, 2) points in drawing units, chord error at most ``step``."""
+    if (e.dxftype() == 'SPLINE' and e.closed and e.control_point_count() == 0
+            and e.fit_point_count() > 2):
+        # a closed spline given by fit points alone: ezdxf's path stops at the last one; CAD
+        # closes it smoothly (one tangent at the joint), so close it that way
+        fit = [Vec3(p) for p in e.fit_points]
+        if not fit[0].isclose(fit[-1]):
+            fit.append(fit[0])
+        t = (fit[1] - fit[-2]).normalize()
+        vs = fit_points_to_cad_cv(fit, tangents=[t, t]).flattening(step)
+    else:
+        vs = dxf_path.make_path(e).flattening(distance=step)
+    pts = np.array([(v.x, v.y) for v in vs], dtype=float).reshape(-1, 2)
+    if len(pts) > 1:  # zero-length steps out (a polyline's doubled vertex)
+        keep = np.r_[True, np.any(np.abs(np.diff(pts, axis=0)) > 1e-12, axis=1)]
+        pts = pts[keep]
+    return pts
 
 
 def _pieces(doc, scale: float, tol: float, name: str) -> tuple[list, list, list[str]]:
-    """Return the closed rings and the open pieces (lists of (x, y)), and ignored types."""
+    """Return closed rings and open pieces as (drawing order, (n, 2) mm), and ignored types."""
     closed, open_, ignored = [], [], set()
-    for e in doc.modelspace():
+    for order, e in enumerate(doc.modelspace()):
         kind = e.dxftype()
-        if kind not in SUPPORTED:
-            ignored.add(kind)
+        if kind not in SUPPORTED or (kind == 'POLYLINE' and not e.is_2d_polyline):
+            ignored.add(kind if kind != 'POLYLINE' else 'POLYLINE (3D or mesh)')
             continue
         try:
-            p = dxf_path.make_path(e)
-            pts = [(v.x * scale, v.y * scale) for v in p.flattening(distance=tol / scale)]
-        except Exception as exc:  # noqa: BLE001 - a broken entity is the drawing's problem
-            raise ProgramError(f'{name}: {kind} {e.dxf.handle} cannot be read: {exc}') from None
+            pts = _flatten(e, tol / scale) * scale
+        except Exception as exc:  # a broken entity is the drawing's problem
+            text = ' '.join(str(exc).split()) or type(exc).__name__
+            raise ProgramError(f'{name}: {kind} #{e.dxf.handle} cannot be flattened: '
+                               f'{text}') from None
         if len(pts) < 2:
             continue
-        if math.dist(pts[0], pts[-1]) <= tol and len(pts) > 3:
-            closed.append(pts)
+        if len(pts) >= 4 and math.dist(pts[0], pts[-1]) <= tol:
+            pts[-1] = pts[0]
+            closed.append((order, pts))
         else:
-            open_.append(pts)
+            open_.append((order, pts))
     return closed, open_, sorted(ignored)
 
 
 def _chain(pieces: list, tol: float, name: str) -> list:
-    """Join open pieces end to end into closed rings."""
+    """Join open pieces end to end into closed rings: [(drawing order, (n, 2))]."""
     rings = []
-    left = [list(p) for p in pieces]
-    while left:
-        chain = left.pop()
-        while math.dist(chain[0], chain[-1]) > tol:
-            end = chain[-1]
-            found = next((k for k, p in enumerate(left)
-                          if math.dist(p[0], end) <= tol or math.dist(p[-1], end) <= tol), None)
-            if found is None:
-                x, y = end
-                raise ProgramError(f'{name}: a contour does not close: open end at '
-                                   f'({x:.3f}, {y:.3f}) mm (nothing within {tol:g} mm)')
-            p = left.pop(found)
-            chain += p[1:] if math.dist(p[0], end) <= tol else p[::-1][1:]
-        rings.append(chain)
+    n = len(pieces)
+    ends = np.array([(p[0], p[-1]) for _, p in pieces], dtype=float).reshape(n, 2, 2)
+    free = np.ones(n, dtype=bool)
+    for i in range(n):  # each chain from its first piece in drawing order
+        if not free[i]:
+            continue
+        free[i] = False
+        chain, stuck = [pieces[i][1]], None
+        while len(chain) == 1 or math.dist(chain[0][0], chain[-1][-1]) > tol:
+            tail = chain[-1][-1]
+            d = np.hypot(ends[:, :, 0] - tail[0], ends[:, :, 1] - tail[1])
+            d[~free] = np.inf
+            j, end = np.unravel_index(int(np.argmin(d)), d.shape)
+            if d[j, end] <= tol:  # the nearest free end: either way round
+                free[j] = False
+                chain.append(pieces[j][1] if end == 0 else pieces[j][1][::-1])
+                continue
+            if len(chain) == 1 and math.dist(chain[0][0], tail) <= tol:
+                break  # a single piece closing on itself (short: degenerate, dropped below)
+            if stuck is None:  # go on from the other end
+                stuck = tail
+                chain = [p[::-1] for p in reversed(chain)]
+                continue
+            other = chain[-1][-1]
+            raise ProgramError(
+                f'{name}: a contour does not close: open end at ({stuck[0]:.3f}, '
+                f'{stuck[1]:.3f}) mm, its other end at ({other[0]:.3f}, {other[1]:.3f}) mm, '
+                f'{math.dist(stuck, other):.3f} mm apart (nothing else within {tol:g} mm)')
+        ring = np.vstack([chain[0]] + [p[1:] for p in chain[1:]])
+        ring[-1] = ring[0]
+        rings.append((pieces[i][0], ring))
     return rings
 
 
-def _nest(polys: list[Polygon]) -> list[Polygon]:
-    """Return the parts: each even-depth contour with the odd-depth ones directly inside."""
-    polys = sorted(polys, key=lambda p: -p.area)
-    depth = [sum(1 for q in polys[:i] if q.contains(p)) for i, p in enumerate(polys)]
-    parts = []
-    for i, p in enumerate(polys):
-        if depth[i] % 2:
-            continue
-        holes = [q.exterior for j, q in enumerate(polys)
-                 if depth[j] == depth[i] + 1 and p.contains(q)]
-        parts.append(Polygon(p.exterior, holes))
-    return parts
+def _polygon(ring: np.ndarray, name: str) -> Polygon | None:
+    """Return the closed ``ring`` as a polygon, None if degenerate; a self-crossing: refused."""
+    if len(ring) < 4:
+        return None
+    poly = Polygon(ring)
+    if not poly.is_valid:
+        pieces = _polygons(shapely.make_valid(poly))
+        total = sum(g.area for g in pieces)
+        if sum(1 for g in pieces if g.area > 0.01 * total) > 1:
+            where = shapely.is_valid_reason(poly)
+            raise ProgramError(f'{name}: a contour crosses itself ({where})')
+        poly = max(pieces, key=lambda g: g.area, default=None)  # a flattening sliver off
+    return poly if poly is not None and poly.area > MIN_AREA_MM2 else None
 
 
-def _ring(poly) -> np.ndarray:
-    """Return the exterior of ``poly`` (the largest piece of a multipolygon) as (n, 2)."""
-    if poly.geom_type == 'MultiPolygon':
-        poly = max(poly.geoms, key=lambda g: g.area)
-    return np.asarray(poly.exterior.coords)
+def _nest(polys: list[Polygon], name: str) -> tuple[list[int], dict, dict]:
+    """Return the parts (indices), each part's holes, and the part whose hole holds a part."""
+    tree = shapely.STRtree(polys)
+    a, b = tree.query(polys, predicate='overlaps')
+    if len(a):
+        x, y = polys[a[0]].boundary.intersection(polys[b[0]].boundary).representative_point(
+        ).coords[0]
+        raise ProgramError(f'{name}: two contours cross each other near ({x:.3f}, {y:.3f}) mm')
+    a, b = tree.query(polys, predicate='contains')
+    pairs = {(int(i), int(j)) for i, j in zip(a, b, strict=True) if i != j}
+    dropped = {max(i, j) for i, j in pairs if (j, i) in pairs}  # a contour drawn twice: once
+    around: dict[int, list[int]] = {j: [] for j in range(len(polys)) if j not in dropped}
+    for i, j in pairs:
+        if i not in dropped and j not in dropped:
+            around[j].append(i)
+    depth = {j: len(v) for j, v in around.items()}
+    inside = {j: max(v, key=lambda i: depth[i]) for j, v in around.items() if v}  # smallest
+    parts = [j for j in sorted(around) if depth[j] % 2 == 0]
+    holes = {p: [j for j in sorted(around) if depth[j] % 2 and inside[j] == p] for p in parts}
+    enclosing = {p: inside[inside[p]] for p in parts if depth[p]}
+    return parts, holes, enclosing
+
+
+def _quad_segs(half: float, tol: float) -> int:
+    """Return the buffer's segments per quarter circle for a chord error within ``tol``."""
+    if half <= tol:
+        return 1
+    step = 2.0 * math.acos(1.0 - tol / half)
+    return int(min(max(math.ceil(math.pi / 2.0 / step), 2), 64))
+
+
+def _polygons(geom) -> list[Polygon]:
+    """Return the polygons of ``geom`` (a buffer may split) above the least area."""
+    geoms = getattr(geom, 'geoms', [geom])
+    return [g for g in geoms if g.geom_type == 'Polygon' and g.area > MIN_AREA_MM2]
 
 
 def _start_at(ring: np.ndarray, k: int, point: np.ndarray) -> np.ndarray:
-    """Return the closed ring re-ordered to start at ``point`` on its edge ``k``."""
+    """Return the closed ``ring`` re-ordered to start (and end) at ``point`` on its edge ``k``."""
     body = ring[:-1]
     order = np.r_[body[k + 1:], body[:k + 1]]
-    out = np.vstack((point, order, point))
-    return out
+    if math.dist(point, order[0]) < 1e-9:
+        order = order[1:]
+    if len(order) and math.dist(point, order[-1]) < 1e-9:
+        order = order[:-1]
+    return np.vstack((point, order, point))
 
 
-def _outer_lead(ring: np.ndarray, lead: float, sheet: Polygon | None) -> tuple:
-    """Return (ring from the start, lead-in) of a clockwise outline: onto its longest edge."""
-    seg = np.diff(ring, axis=0)
-    length = np.hypot(seg[:, 0], seg[:, 1])
-    for k in np.argsort(-length):
-        if length[k] < 1e-6:
-            break
-        mid = ring[k] + seg[k] / 2.0
-        normal = np.array([-seg[k, 1], seg[k, 0]]) / length[k]  # left of travel: outward (cw)
-        start = mid + normal * lead
-        if sheet is None or sheet.contains(Point(start).buffer(4.0 + 1.0)):
-            return _start_at(ring, int(k), mid), np.vstack((start, mid))
-    k = int(np.argmax(length))  # nowhere on the sheet: the longest edge anyway
-    mid = ring[k] + seg[k] / 2.0
-    normal = np.array([-seg[k, 1], seg[k, 0]]) / max(length[k], 1e-9)
-    return _start_at(ring, k, mid), np.vstack((mid + normal * lead, mid))
-
-
-def _hole_lead(ring: np.ndarray, slug: Polygon, lead: float) -> tuple:
-    """Return (ring from the start, lead-in) of a hole: from its inner point to its edge."""
-    centre = np.asarray(slug.representative_point().coords[0])
-    seg = np.diff(ring, axis=0)
-    # the point of the ring nearest the centre, on its edge
-    best = (math.inf, 0, ring[0])
-    for k in range(len(seg)):
-        ll = float(seg[k] @ seg[k])
-        t = 0.0 if ll == 0.0 else min(max(float((centre - ring[k]) @ seg[k]) / ll, 0.0), 1.0)
-        p = ring[k] + t * seg[k]
-        d = float(np.hypot(*(p - centre)))
-        if d < best[0]:
-            best = (d, k, p)
-    d, k, p = best
-    reach = min(lead, 0.8 * d) if d > 0.5 / 0.8 else d  # a small hole: from its centre
-    start = p + (centre - p) / max(d, 1e-9) * reach
+def _hole_lead(ring: np.ndarray, slug: Polygon, lead: float, tol: float) -> tuple:
+    """Return (ring from its start, lead-in) of a hole: from its pole to the nearest point."""
+    pole = np.asarray(polylabel(slug, tolerance=max(tol, 1e-3)).coords[0])
+    a, seg = ring[:-1], np.diff(ring, axis=0)
+    ll = np.maximum(np.einsum('ij,ij->i', seg, seg), 1e-24)
+    t = np.clip(np.einsum('ij,ij->i', pole - a, seg) / ll, 0.0, 1.0)
+    near = a + t[:, None] * seg
+    d = np.hypot(near[:, 0] - pole[0], near[:, 1] - pole[1])
+    k = int(np.argmin(d))
+    p = near[k]
+    # a hole smaller than the lead-in: shortened to fit, from its centre (its pole)
+    reach = min(lead, float(d[k]))
+    start = p + (pole - p) / max(float(d[k]), 1e-12) * reach
     return _start_at(ring, k, p), np.vstack((start, p))
 
 
-def _joints(points: np.ndarray, n: int, gap: float) -> tuple[tuple[float, float], ...]:
+def _outer_lead(ring: np.ndarray, lead: float, fits) -> tuple:
+    """Return (ring from its start, lead-in) of a clockwise outline, onto an edge's middle.
+
+    The longest edge first whose lead-in ``fits(start, end)``; none: shorter lead-ins (to
+    ``MIN_LEAD_MM``), then the longest edge regardless.
+    """
+    seg = np.diff(ring, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    outward = np.column_stack((-seg[:, 1], seg[:, 0])) / np.maximum(length, 1e-12)[:, None]
+    # (the left of the travel: outward on a clockwise ring)
+    order = np.argsort(-length, kind='stable')
+    order = order[length[order] > 1e-9]
+    reaches = [lead] + [r for r in (lead / 2.0, MIN_LEAD_MM) if r < lead]
+    for reach in reaches:
+        for k in order:
+            mid = ring[k] + seg[k] / 2.0
+            start = mid + outward[k] * reach
+            if fits(start, mid):
+                return _start_at(ring, int(k), mid), np.vstack((start, mid))
+    k = int(order[0])
+    mid = ring[k] + seg[k] / 2.0
+    return _start_at(ring, k, mid), np.vstack((mid + outward[k] * lead, mid))
+
+
+def _lead_check(own: int, parts: list[Polygon], tree: shapely.STRtree, half: float,
+                sheet_mm: tuple[float, float] | None):
+    """Return fits(start, end): the lead-in in the scrap, clear of other parts, on the sheet."""
+    clear = half + PIERCE_CLEAR_MM
+
+    def fits(start: np.ndarray, end: np.ndarray) -> bool:
+        if sheet_mm is not None and not (
+                SHEET_MARGIN_MM <= start[0] <= sheet_mm[0] - SHEET_MARGIN_MM
+                and SHEET_MARGIN_MM <= start[1] <= sheet_mm[1] - SHEET_MARGIN_MM):
+            return False
+        line = LineString((start, end)) if math.dist(start, end) > 1e-9 else Point(start)
+        if line.geom_type == 'LineString' and parts[own].intersection(line).length > 1e-6:
+            return False  # across its own part (a notch's other side)
+        return all(int(i) == own for i in tree.query(line, predicate='dwithin', distance=clear))
+
+    return fits
+
+
+def _micro_joints(points: np.ndarray, n: int, gap: float) -> tuple[tuple[float, float], ...]:
+    """Return ``n`` beam-off gaps of ``gap`` mm spread evenly after the first 2 mm."""
     if n <= 0 or gap <= 0.0:
         return ()
-    d = np.diff(points, axis=0)
-    total = float(np.hypot(d[:, 0], d[:, 1]).sum())
-    usable = total - 2.0
-    if usable <= n * gap:
-        return ()
-    return tuple((2.0 + usable * (i + 0.5) / n, 2.0 + usable * (i + 0.5) / n + gap)
-                 for i in range(n))
+    usable = _length(points) - JOINT_FREE_MM
+    if usable < 2.0 * n * gap:
+        return ()  # a part too small for its joints: none (as a CAM skips them on small parts)
+    step = usable / n
+    return tuple((JOINT_FREE_MM + step * (i + 0.5) - gap / 2.0,
+                  JOINT_FREE_MM + step * (i + 0.5) + gap / 2.0) for i in range(n))
+
+
+def _order(groups: list, enclosing: dict[int, int]) -> list[Contour]:
+    """Return the contours in cut order (module docstring) from (holes, outline) per part."""
+    here = np.zeros(2)
+    left = set(range(len(groups)))
+    out: list[Contour] = []
+
+    def dist(c: Contour) -> float:
+        return math.dist(c.pierce_xy, here)
+
+    while left:
+        # a part whose hole holds parts not cut yet waits: the slug would take them along
+        busy = {enclosing[k] for k in left if k in enclosing}
+        ready = [k for k in sorted(left) if k not in busy]
+        k = min(ready, key=lambda j: min(dist(c) for c in (groups[j][0] or [groups[j][1]])))
+        left.remove(k)
+        holes, outline = groups[k]
+        todo = list(holes)
+        while todo:
+            c = min(todo, key=dist)
+            todo.remove(c)
+            out.append(c)
+            here = c.points_mm[-1]
+        out.append(outline)
+        here = outline.points_mm[-1]
+    return out
 
 
 def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
                  micro_joint_mm: float = 0.0, micro_joints_per_part: int = 0,
                  tolerance_mm: float = 0.01,
                  sheet_mm: tuple[float, float] | None = None) -> Program:
-    """Read ``path`` and make its part program (module docstring); :class:`ProgramError`."""
+    """Read the DXF ``path`` and make its part program (module docstring).
+
+    Every bad input (arguments, file, drawing) raises :class:`ProgramError`, one line.
+    """
     name = str(path)
-    if not 0.0 <= kerf_mm <= 5.0:
-        raise ProgramError(f'{name}: kerf_mm {kerf_mm!r} outside 0..5 mm')
-    if not 0.0 <= lead_in_mm <= 50.0:
-        raise ProgramError(f'{name}: lead_in_mm {lead_in_mm!r} outside 0..50 mm')
-    if not 0.0 < tolerance_mm <= 1.0:
-        raise ProgramError(f'{name}: tolerance_mm {tolerance_mm!r} outside 0 (excl.)..1 mm')
-    try:
-        doc = ezdxf.readfile(str(path))
-    except OSError as exc:
-        raise ProgramError(f'{name}: cannot read: {exc.strerror or exc}') from None
-    except ezdxf.DXFError as exc:
-        raise ProgramError(f'{name}: not a readable DXF: {" ".join(str(exc).split())}') from None
-    code = int(doc.header.get('$INSUNITS', 0))
-    if code not in UNITS:
-        raise ProgramError(f'{name}: drawing units missing or unsupported ($INSUNITS={code}): '
-                           'set them to millimetres (4), or cm, m, inches')
-    units, scale = UNITS[code]
+    _check_arguments(name, kerf_mm, lead_in_mm, micro_joint_mm, micro_joints_per_part,
+                     tolerance_mm, sheet_mm)
+    doc = _read(path, name)
+    code, units, scale = _units(doc, name)
     closed, open_, ignored = _pieces(doc, scale, tolerance_mm, name)
-    size = max([max(abs(x) for x, _ in r) for r in closed + open_] or [0.0])
-    rings = closed + _chain(open_, max(tolerance_mm, 1e-6 * size), name)
-    polys = [Polygon(r).buffer(0) for r in rings]
-    polys = [p if p.geom_type == 'Polygon' else max(p.geoms, key=lambda g: g.area)
-             for p in polys if p.area > 1e-6]
-    if not polys:
-        raise ProgramError(f'{name}: no closed contour in the drawing')
-    minx, miny, maxx, maxy = shapely.total_bounds(polys)
+    drawn = [p for _, p in closed + open_]
+    if not drawn:
+        raise ProgramError(f'{name}: nothing to cut: no line, arc, circle, ellipse, spline or '
+                           'polyline in the modelspace')
+    every = np.vstack(drawn)
+    minx, miny = every.min(axis=0)
+    maxx, maxy = every.max(axis=0)
     w, h = maxx - minx, maxy - miny
     if max(w, h) < 1.0 or (sheet_mm is not None and (w > 2.0 * sheet_mm[0]
                                                       or h > 2.0 * sheet_mm[1])):
+        sheet = f', the sheet {sheet_mm[0]:g} x {sheet_mm[1]:g} mm' if sheet_mm else ''
         raise ProgramError(f'{name}: units absurd for the sheet: the drawing is {w:.4g} x '
-                           f'{h:.4g} mm in {units} ($INSUNITS={code})'
-                           + (f', the sheet {sheet_mm[0]:g} x {sheet_mm[1]:g} mm'
-                              if sheet_mm else ''))
-    parts = _nest(polys)
-    sheet = (Polygon([(0, 0), (sheet_mm[0], 0), (sheet_mm[0], sheet_mm[1]), (0, sheet_mm[1])])
-             if sheet_mm else None)
+                           f'{h:.4g} mm read as {units} ($INSUNITS={code}){sheet}')
+    join = max(tolerance_mm, 1e-6 * float(np.abs(every).max()))
+    rings = sorted(closed + _chain(open_, join, name), key=lambda r: r[0])
+    polys = [p for p in (_polygon(r, name) for _, r in rings) if p is not None]
+    if not polys:
+        raise ProgramError(f'{name}: no closed contour with an area in the drawing')
+    outlines, holes_of, enclosing = _nest(polys, name)
+    parts = [Polygon(polys[j].exterior, [polys[h].exterior for h in holes_of[j]])
+             for j in outlines]
+    index = {j: k for k, j in enumerate(outlines)}
+
     half = kerf_mm / 2.0
-    per_part = []
-    for i, part in enumerate(parts):
+    # Round joins: around an outside corner the beam's centre keeps half a kerf from the corner,
+    # an arc (what a round beam cuts; a mitre would run past the corner and back); segments
+    # per quarter circle for a chord error within the tolerance.
+    quad = _quad_segs(half, tolerance_mm)
+    tree = shapely.STRtree(parts)
+    groups = []
+    for k, j in enumerate(outlines):
         holes = []
-        for hole in part.interiors:
-            slug = Polygon(hole).buffer(-half, join_style='round') if half else Polygon(hole)
-            if slug.is_empty or slug.area <= 1e-6:
-                continue  # smaller than the kerf: the beam takes it whole
-            ring = np.asarray(orient(Polygon(_ring(slug)), sign=1.0).exterior.coords)  # ccw
-            pts, lead = _hole_lead(ring, Polygon(ring), lead_in_mm)
-            holes.append(Contour(pts, True, i, lead, Polygon(ring)))
-        outer = Polygon(part.exterior).buffer(half, join_style='round') if half else part
-        ring = np.asarray(orient(Polygon(_ring(outer)), sign=-1.0).exterior.coords)  # cw
-        pts, lead = _outer_lead(ring, lead_in_mm, sheet)
+        for h in holes_of[j]:
+            slug = polys[h].buffer(-half, quad_segs=quad, join_style='round') if half else polys[h]
+            for piece in _polygons(slug):  # none: a hole within the kerf, the beam takes it all
+                ring = np.asarray(orient(Polygon(piece.exterior), sign=1.0).exterior.coords)
+                region = Polygon(ring)
+                pts, lead = _hole_lead(ring, region, lead_in_mm, tolerance_mm)
+                holes.append(Contour(_frozen(pts), True, k, _frozen(lead), region))
+        outer = (Polygon(polys[j].exterior).buffer(half, quad_segs=quad, join_style='round')
+                 if half else Polygon(polys[j].exterior))
+        ring = np.asarray(orient(Polygon(outer.exterior), sign=-1.0).exterior.coords)
+        pts, lead = _outer_lead(ring, lead_in_mm, _lead_check(k, parts, tree, half, sheet_mm))
         region = Polygon(ring, [c.region.exterior.coords for c in holes])
-        per_part.append((holes, Contour(pts, False, i, lead, region,
-                                        _joints(pts, micro_joints_per_part, micro_joint_mm))))
-    # order: parts nearest next from the origin; within a part its holes nearest next, then
-    # its outline
-    order, here = [], np.zeros(2)
-    left = list(range(len(per_part)))
-    while left:
-        k = min(left, key=lambda j: float(np.hypot(*(np.asarray(
-            (per_part[j][0] or [per_part[j][1]])[0].pierce_xy) - here))))
-        left.remove(k)
-        holes, outline = per_part[k]
-        todo = list(holes)
-        while todo:
-            c = min(todo, key=lambda q: float(np.hypot(*(np.asarray(q.pierce_xy) - here))))
-            todo.remove(c)
-            order.append(c)
-            here = np.asarray(c.points_mm[-1])
-        order.append(outline)
-        here = np.asarray(outline.points_mm[-1])
+        joints = _micro_joints(pts, micro_joints_per_part, micro_joint_mm)
+        groups.append((holes, Contour(_frozen(pts), False, k, _frozen(lead), region, joints)))
+    order = _order(groups, {index[p]: index[q] for p, q in enclosing.items()})
     return Program(name, units, scale, tuple(order), tuple(parts),
                    (float(minx), float(miny), float(maxx), float(maxy)), tuple(ignored))
 
