@@ -13,10 +13,10 @@ All lengths are millimetres once ``$INSUNITS`` has scaled the drawing.
 * **Nesting**: a contour inside an odd number of others is a hole of the smallest one around
   it; the others are parts (a part in another part's hole is a part of its own). Contours that
   cross each other are refused; a contour drawn twice over itself is cut once.
-* **Direction and kerf**: the laser convention, the part on the right of the travel (the better
-  edge of the cut): outlines clockwise, holes counter-clockwise, so the scrap is on the left of
-  the travel for both. The path runs half a kerf into the scrap (compensation to the left, G41
-  on a control that compensates itself): outside a part's outline, inside a hole.
+* **Direction and kerf**: outlines clockwise, holes counter-clockwise (the usual laser CAM
+  convention): the part is on the right of the travel and the scrap on its left, for both. The
+  path runs half a kerf into the scrap, outside a part's outline and inside a hole: the
+  compensation to the left of the travel (G41 on a control that compensates itself).
 * **Lead-ins**, straight, from the scrap: into a hole from its pole (the centre of its largest
   inscribed circle) to the nearest point of its path, perpendicular to it, shortened to fit a
   small hole; onto an outline along the outward normal at the middle of its longest edge whose
@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import math
 import numbers
 from pathlib import Path
+import re
 
 import ezdxf
 from ezdxf import path as dxf_path
@@ -115,7 +116,8 @@ def _number(name: str, label: str, value: object, lo: float, hi: float, *,
         x = math.nan
     if not (lo < x <= hi if open_low else lo <= x <= hi):  # NaN fails both
         span = f'({lo:g}, {hi:g}]' if open_low else f'{lo:g}..{hi:g}'
-        raise ProgramError(f'{name}: {label} {value!r} outside {span} mm')
+        what = 'outside' if x == x else 'is not a number in'
+        raise ProgramError(f'{name}: {label} {value!r} {what} {span} mm')
     return x
 
 
@@ -256,8 +258,11 @@ def _polygon(ring: np.ndarray, name: str) -> Polygon | None:
         pieces = _polygons(shapely.make_valid(poly))
         total = sum(g.area for g in pieces)
         if sum(1 for g in pieces if g.area > 0.01 * total) > 1:
-            where = shapely.is_valid_reason(poly)
-            raise ProgramError(f'{name}: a contour crosses itself ({where})')
+            reason = shapely.is_valid_reason(poly)  # 'Self-intersection[x y]'
+            xy = re.findall(r'[-+0-9.eE]+', reason.partition('[')[2])[:2]
+            where = f'near ({float(xy[0]):.3f}, {float(xy[1]):.3f}) mm' if len(xy) == 2 else (
+                f'({reason})')
+            raise ProgramError(f'{name}: a contour crosses itself {where}')
         poly = max(pieces, key=lambda g: g.area, default=None)  # a flattening sliver off
     return poly if poly is not None and poly.area > MIN_AREA_MM2 else None
 
@@ -326,36 +331,55 @@ def _hole_lead(ring: np.ndarray, slug: Polygon, lead: float, tol: float) -> tupl
     return _start_at(ring, k, p), np.vstack((start, p))
 
 
-def _outer_lead(ring: np.ndarray, lead: float, fits) -> tuple:
+def _candidates(length: np.ndarray, most: int = 48) -> list[np.ndarray]:
+    """Return the edges to try a lead-in on: the long ones, then the rest, longest first.
+
+    At most ``most`` of each, spread along the ring (a circle's edges are all as long).
+    """
+    out = []
+    long = length >= 0.5 * float(length.max())
+    for group in (np.flatnonzero(long), np.flatnonzero(~long & (length > 1e-9))):
+        if len(group) > most:
+            group = group[np.linspace(0, len(group) - 1, most).round().astype(int)]
+        out.append(group[np.argsort(-length[group], kind='stable')])
+    return out
+
+
+def _outer_lead(ring: np.ndarray, lead: float, half: float, fits) -> tuple:
     """Return (ring from its start, lead-in) of a clockwise outline, onto an edge's middle.
 
-    The longest edge first whose lead-in ``fits(start, end)``; none: shorter lead-ins (to
-    ``MIN_LEAD_MM``), then the longest edge regardless.
+    The first lead-in that ``fits(start, end, clear)``, trying: open scrap (its pierce as far
+    from other parts as from its own), then ``PIERCE_CLEAR_MM`` beyond half a kerf; the long
+    edges, then the others; the lead-in shortened (to ``MIN_LEAD_MM``). None fits: the longest
+    edge regardless.
     """
     seg = np.diff(ring, axis=0)
     length = np.hypot(seg[:, 0], seg[:, 1])
+    # the left of the travel: outward on a clockwise ring
     outward = np.column_stack((-seg[:, 1], seg[:, 0])) / np.maximum(length, 1e-12)[:, None]
-    # (the left of the travel: outward on a clockwise ring)
-    order = np.argsort(-length, kind='stable')
-    order = order[length[order] > 1e-9]
     reaches = [lead] + [r for r in (lead / 2.0, MIN_LEAD_MM) if r < lead]
+    groups = _candidates(length)
     for reach in reaches:
-        for k in order:
-            mid = ring[k] + seg[k] / 2.0
-            start = mid + outward[k] * reach
-            if fits(start, mid):
-                return _start_at(ring, int(k), mid), np.vstack((start, mid))
-    k = int(order[0])
+        for clear in (half + max(reach, PIERCE_CLEAR_MM), half + PIERCE_CLEAR_MM):
+            for group in groups:
+                for k in group:
+                    mid = ring[k] + seg[k] / 2.0
+                    start = mid + outward[k] * reach
+                    if fits(start, mid, clear):
+                        return _start_at(ring, int(k), mid), np.vstack((start, mid))
+    k = int(np.argmax(length))
     mid = ring[k] + seg[k] / 2.0
     return _start_at(ring, k, mid), np.vstack((mid + outward[k] * lead, mid))
 
 
-def _lead_check(own: int, parts: list[Polygon], tree: shapely.STRtree, half: float,
+def _lead_check(own: int, parts: list[Polygon], tree: shapely.STRtree,
                 sheet_mm: tuple[float, float] | None):
-    """Return fits(start, end): the lead-in in the scrap, clear of other parts, on the sheet."""
-    clear = half + PIERCE_CLEAR_MM
+    """Return fits(start, end, clear): the lead-in in the scrap, ``clear`` mm from other parts.
 
-    def fits(start: np.ndarray, end: np.ndarray) -> bool:
+    And its pierce point ``SHEET_MARGIN_MM`` inside the sheet, when the sheet is given.
+    """
+
+    def fits(start: np.ndarray, end: np.ndarray, clear: float) -> bool:
         if sheet_mm is not None and not (
                 SHEET_MARGIN_MM <= start[0] <= sheet_mm[0] - SHEET_MARGIN_MM
                 and SHEET_MARGIN_MM <= start[1] <= sheet_mm[1] - SHEET_MARGIN_MM):
@@ -445,9 +469,10 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
     index = {j: k for k, j in enumerate(outlines)}
 
     half = kerf_mm / 2.0
-    # Round joins: around an outside corner the beam's centre keeps half a kerf from the corner,
-    # an arc (what a round beam cuts; a mitre would run past the corner and back); segments
-    # per quarter circle for a chord error within the tolerance.
+    # Round joins: at an outside corner the beam's centre circles the corner at half a kerf (the
+    # arc a control's G41 inserts): the part's corner stays sharp, the path is the shortest and
+    # smooth for the motion; a mitre runs out to a point (far out at an acute corner) and back.
+    # Segments per quarter circle for a chord error within the tolerance.
     quad = _quad_segs(half, tolerance_mm)
     tree = shapely.STRtree(parts)
     groups = []
@@ -463,7 +488,8 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
         outer = (Polygon(polys[j].exterior).buffer(half, quad_segs=quad, join_style='round')
                  if half else Polygon(polys[j].exterior))
         ring = np.asarray(orient(Polygon(outer.exterior), sign=-1.0).exterior.coords)
-        pts, lead = _outer_lead(ring, lead_in_mm, _lead_check(k, parts, tree, half, sheet_mm))
+        fits = _lead_check(k, parts, tree, sheet_mm)
+        pts, lead = _outer_lead(ring, lead_in_mm, half, fits)
         region = Polygon(ring, [c.region.exterior.coords for c in holes])
         joints = _micro_joints(pts, micro_joints_per_part, micro_joint_mm)
         groups.append((holes, Contour(_frozen(pts), False, k, _frozen(lead), region, joints)))
