@@ -72,6 +72,8 @@ from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict  # noq
 from ladrc_tools.offline.suite import LAW_ONLY  # noqa: E402
 
 FAULT = 5
+PID, LADRC = 3, 4
+EDGE_HOLDS = ('edge', 'out of panel edge')  # the edge guard's hold reasons (edge.py)
 SCENARIOS = ROOT / 'tests' / 'ros' / 'scenarios'
 ROWS: list[dict] = []
 OFF_LABEL = ' (edge verification off)'
@@ -137,6 +139,14 @@ def headless(name: str, timeline=(), sheet=None, duration_s=3.5, corrupt=None,
     if edge:
         extra['gap_over_target'] = round(gap_over_target(
             gap, np.asarray(res.internals['target_gap_mm'], dtype=float)), 3)
+        # an edge is held, not latched (edge.py): the first edge hold, nothing toward the sheet
+        # while held, and whether the run ends following again
+        reasons = res.internals['hold_reason']
+        at_edge = np.array([r.startswith(EDGE_HOLDS) for r in reasons], dtype=bool)
+        extra['edge_hold'] = (reasons[int(np.argmax(at_edge))][:50] if at_edge.any()
+                              else '-')
+        extra['downward_while_edge_held'] = bool(np.any(u[at_edge] < 0.0))
+        extra['following_at_end'] = bool(state[-1] in (PID, LADRC) and not at_edge[-1])
     return row(name, contact=bool(gap.min() <= 0.0), min_true_gap_mm=float(gap.min()),
                fault=c.fault_reason[:70] if faulted else '-',
                downward_after_fault=bool(np.any(u[k:] < 0.0)),
@@ -182,6 +192,12 @@ def headless_rows() -> None:
                          params=params, edge=True)
         for sc in ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1'):
             headless(f'seed edge scenario {sc}{label}', scenario=sc, params=params, edge=True)
+    # off the sheet and back: the hold must end by itself (issue 24: no latched FAULT)
+    for cov in (0.7, 0.5, 0.3):
+        headless(f'edge: {1 - cov:.0%} off the sheet for 1.5 s, then back',
+                 [{'t_s': 1.5, 'do': 'coverage', 'value': cov, 'ramp_s': 0.2},
+                  {'t_s': 3.0, 'do': 'coverage', 'value': 1.0, 'ramp_s': 0.2}],
+                 duration_s=5.0, edge=True)
     # the verification's known limit (docs/safety.md): a slide at the crest of a wavy sheet
     # sinks only as far as the trough already verified before anything is verified
     for amp in (0.3, 0.5):
@@ -818,6 +834,11 @@ def main() -> None:
         'recorder_kill_loss_s': live.get('recorder_kill_loss_s'),
         'param_clients': live.get('param_clients'),
         'downward_after_fault_rows': [r['row'] for r in ROWS if r.get('downward_after_fault')],
+        'downward_while_edge_held_rows': [r['row'] for r in ROWS
+                                          if r.get('downward_while_edge_held')],
+        'edge_back_rows_not_following_at_end': [
+            r['row'] for r in ROWS if r['row'].endswith('then back')
+            and not r.get('following_at_end')],
         'contact_rows': [r['row'] for r in ROWS if r.get('contact') is True],
         # edges where the true gap fell below 0.7 x the target (the issue's bar), shipped set
         'edge_rows_below_0_7': [r['row'] for r in ROWS if r.get('gap_over_target', 1.0) < 0.7

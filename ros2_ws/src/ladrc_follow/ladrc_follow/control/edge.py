@@ -12,15 +12,14 @@ shrinks by the axis travel, at an edge by more (gain > 1). So:
   stretch of axis travel (reading travel / encoder travel, at least ``gain_travel_mm`` at
   ``judge_mm_s`` or faster, so that the sheet's own motion adds little). It runs through
   every approach until followed (the approach is the excitation) and after every fast fall
-  of the apparent surface. A gain above ``gain_max`` is an edge: FAULT, nothing moves toward
-  the sheet.
+  of the apparent surface. A gain above ``gain_max`` is an edge: held (below).
 * **A fast fall is not followed down.** The apparent surface ``encoder − gap`` (low-passed
   over ``fall_tau_s``) falling faster than ``fall_mm_s``, faster than a flat sheet falls, is
   held (no command toward the sheet) while it lasts. Closing in afterwards is capped at
   ``probe_mm_s`` until :class:`TravelGain` has seen ``gain_travel_mm`` of travel and found a
   sheet (gain ≤ ``gain_max``); a gain above it faults as above.
 * **A far drop** of the apparent surface below its slow reference (``drop_mm``, the seed's
-  ``CheckForOutPanelEdge`` in ``Follow_OnStep``) faults as before.
+  ``CheckForOutPanelEdge`` in ``Follow_OnStep``, which faults there) is held as an edge.
 * **A slow sink is verified.** While following, the axis barely moves against the sheet, so
   the gain has no excitation: an apparent surface that sinks ``verify_sink`` × target below
   the lowest level verified within ``verify_memory_s`` is verified before it is followed
@@ -30,6 +29,14 @@ shrinks by the axis travel, at an edge by more (gain > 1). So:
   ``verify_confirm`` gains significantly above ``verify_gain_max`` in a row are an edge.
   A follow that starts less than ``verify_start_mm`` above its target, and a level reached
   without any judged gain, are verified the same way before they are followed.
+* **An edge is held, not latched** (a FAULT that needs a reset is for collisions and the
+  hardware): nothing moves toward the sheet, the law runs on under the hold (its observer fed
+  the applied command), and the hold ends by itself once the nozzle is over the sheet again:
+  the apparent surface back within half the sink budget of the level last verified over the
+  sheet (a reading that narrows back as the nozzle returns; not while closing in, where the
+  narrowing is the edge's own signature), or a verification, repeated after ``hold_retry_s``
+  with the wait doubling each time (each lifts the nozzle a little), that finds the gain of
+  a sheet. Closing in after it is probed as after a fast fall.
 
 What it cannot see: a slide that the sheet's own rise hides (the apparent surface does not
 sink), and a sensor too noisy to fit (it holds instead); docs/safety.md gives the figures.
@@ -130,10 +137,16 @@ class EdgeParams(Section):
                                 'not tell (each lifts the nozzle again); after them only a '
                                 'further verify_sink sink verifies again', ge=0, le=10)
     verify_confirm: int = param(2, '1', 'verifications in a row above verify_gain_max that '
-                                'make an edge (FAULT); the first ones hold and verify again',
-                                ge=1, le=10)
+                                'make an edge (held until over the sheet again); the first '
+                                'ones hold and verify again', ge=1, le=10)
     probe_s: float = param(0.1, 's', 'the probe after a fast fall ends after this time without '
                            'closing in (nothing left to close)', gt=0.0, le=10.0)
+    hold_retry_s: float = param(0.25, 's', 'while held at an edge, the feedback gain is verified '
+                                'again after this time, the wait doubling after each (each '
+                                'verification lifts the nozzle about verify_mm_s x '
+                                'verify_move_s: 7 of them in a minute); the hold also ends when '
+                                'the reading comes back to the level last verified over the '
+                                'sheet', gt=0.0, le=10.0, seed=_EDGE)
 
 
 class TravelGain:
@@ -248,7 +261,8 @@ class EdgeGuard:
 
     OK: go on; FALLING: hold (no command toward the sheet, the law not stepped); HOLD: the law
     runs, only its upward commands pass; VERIFY: the law runs with its output overridden by
-    ``verify_velocity_mm_s``; EDGE: the gain says edge (``reason`` says how it was measured).
+    ``verify_velocity_mm_s``; EDGE: held at an edge (``reason`` says how it was measured), as
+    HOLD, until :meth:`update` returns OK or VERIFY again (``held``).
     ``down_cap_mm_s`` is the speed limit toward the sheet it asks for (inf when none).
     """
 
@@ -303,6 +317,11 @@ class EdgeGuard:
         self.aborted = 0  # verifications given up for a sheet coming up
         self.gain = self.gain_se = self.fit_rms_mm = math.nan  # the last verification's fit
         self.reason = ''
+        self.held = False  # at an edge: held until the nozzle is over the sheet again
+        self._held_approach = False  # held before the follow closed in (only a fit ends it)
+        self._held_t = 0.0  # the hold's start or its last verification
+        self._held_n = 0  # verifications during this hold (each doubles the wait)
+        self.holds = 0  # edge holds in this follow
         p = self.params
         if p.enabled and 0.0 < start_above_mm < p.verify_start_mm:
             self._start_verify(at_start=True)
@@ -317,7 +336,8 @@ class EdgeGuard:
                      '_slow_mm_s', 'probing', 'verified_mm',
                      '_probe_ticks', '_strikes', '_doubt_mm', '_doubt_t', '_doubt_n', 'doubts',
                      'aborted', '_at_start', 'gain', 'gain_se', 'fit_rms_mm', 'reason',
-                     'surface_ref_mm'):
+                     'surface_ref_mm', 'held', '_held_approach', '_held_t', '_held_n',
+                     'holds'):
             setattr(self, name, getattr(old, name))
         self._found = deque(old._found)
         self.verifying = False
@@ -332,14 +352,26 @@ class EdgeGuard:
         the check off. The reference follows the surface on every tick that passes.
         """
         drop = self.params.drop_mm
-        if drop > 0.0:
+        if drop > 0.0 and not self.held:  # the reference stays where it was during a hold
             sf = enc_mm - gap_mm
             ref = self.surface_ref_mm
             if sf < ref - drop:
-                return (f'out of panel edge: apparent sheet surface fell {ref - sf:.2f} mm '
-                        f'below its reference (limit {drop:g} mm)')
+                return self.hold_edge(
+                    f'out of panel edge: apparent sheet surface fell {ref - sf:.2f} mm '
+                    f'below its reference (limit {drop:g} mm); holding', approaching=False)
             self.surface_ref_mm = ref + self._c_ref * (sf - ref)
         return ''
+
+    def hold_edge(self, reason: str, approaching: bool) -> str:
+        """Hold at an edge from now on (module docstring); return ``reason``."""
+        if not self.held:
+            self.held = True
+            self.holds += 1
+            self._held_approach = approaching
+            self._held_t = self._t
+            self._held_n = 0
+        self.reason = reason
+        return reason
 
     @property
     def down_cap_mm_s(self) -> float:
@@ -392,11 +424,15 @@ class EdgeGuard:
             self._r2, self._r1 = self._r1, gap_mm
         if isnan(dz):
             # first tick
+            if self.held:
+                return EDGE
             return self._verify_tick(enc_mm, gap_mm, fresh) if self.verifying else OK
         # the apparent surface (encoder − gap) moves by dz − dr
         ds = (dz - dr) / self._h
         v = self.surface_mm_s = self.surface_mm_s + self._c * (ds - self.surface_mm_s)
         self._slow_mm_s += self._c_slow * (ds - self._slow_mm_s)
+        if self.held:
+            return self._held_tick(enc_mm, gap_mm, fresh, target_mm)
         if self.verifying:
             # no fall hold inside a verification: the move up itself makes the apparent surface
             # fall at an edge (by (k - 1) x the lift), and a real sheet step leaves the fit a
@@ -414,7 +450,7 @@ class EdgeGuard:
                 return self._retry_or(HOLD, at_start=True)
             k = self.travel.update(enc_mm, gap_mm)
             if k > p.gain_max:
-                return self._edge_travel(k)
+                return self._edge_travel(k, True)
             if not isnan(k):
                 self._verified(s)
             return OK
@@ -424,7 +460,7 @@ class EdgeGuard:
             self._probe_ticks += 1
             if not isnan(k) and dz < 0.0:
                 if k > p.gain_max:
-                    return self._edge_travel(k)
+                    return self._edge_travel(k, False)
                 self.probing = False  # a sheet under the nozzle: full speed again
                 self._verified(s)
             elif self._probe_ticks >= self._probe_max:
@@ -477,8 +513,9 @@ class EdgeGuard:
             return self._verify_tick(self._z, self._r, False)
         if (at_start or give_up) and self._doubt_n > p.verify_retries:
             where = 'before closing in' if at_start else 'at the level the follow reached'
-            self.reason = (f'edge: the feedback gain could not be verified {where} '
-                           f'({self._doubt_n} verifications: {self._fit_text()}); holding')
+            self.hold_edge(f'edge: the feedback gain could not be verified {where} '
+                           f'({self._doubt_n} verifications: {self._fit_text()}); holding',
+                           approaching=at_start or isnan(self.verified_mm))
             return EDGE
         return verdict
 
@@ -551,25 +588,63 @@ class EdgeGuard:
         self._strikes += 1
         if self._strikes >= p.verify_confirm:
             lift_um = (max(z) - self._z_start) * 1e3
-            self.reason = (f'edge: a move up of {lift_um:.0f} µm '
+            self.hold_edge(f'edge: a move up of {lift_um:.0f} µm '
                            f'found the nozzle leaving the sheet (feedback gain {k:.2f} ± '
                            f'{se:.2f} in {self._strikes} verification(s) in a row, limit '
-                           f'{p.verify_gain_max:g}); holding')
+                           f'{p.verify_gain_max:g}); holding',
+                           approaching=self._at_start or isnan(self.verified_mm))
             return EDGE
         self._start_verify(self._at_start)  # verify again: one measurement is not an edge yet
         return VERIFY
 
     def _verified(self, level_mm: float) -> None:
         """Take a level found over the sheet (gain judged) as the reference from now on."""
+        if self.held:
+            self._release(level_mm)
         self.verified_mm = level_mm
         found = self._found
         while found and found[-1][1] >= level_mm:
             found.pop()  # never the window's minimum again
         found.append((self._t, level_mm))
 
-    def _edge_travel(self, k: float) -> int:
-        self.reason = (f'edge: the nozzle is leaving the sheet (feedback gain {k:.2f}: the '
+    def _edge_travel(self, k: float, approaching: bool) -> int:
+        self.hold_edge(f'edge: the nozzle is leaving the sheet (feedback gain {k:.2f}: the '
                        f'reading moved {k:.2f} mm per mm of axis travel over the last '
                        f'{self.travel.window * self._h * 1e3:.3g} ms, limit '
-                       f'{self.params.gain_max:g}); holding')
+                       f'{self.params.gain_max:g}); holding', approaching)
         return EDGE
+
+    def _held_tick(self, enc_mm: float, gap_mm: float, fresh: bool, target_mm: float) -> int:
+        """One tick held at an edge: EDGE (hold), VERIFY, or OK once over the sheet again."""
+        p = self.params
+        if self.verifying:
+            v = self._verify_tick(enc_mm, gap_mm, fresh)  # a sheet found: _verified releases
+            return v if v == VERIFY or not self.held else EDGE
+        s = enc_mm - gap_mm
+        ver = self.verified_mm
+        if (not self._held_approach and not isnan(ver)
+                and s >= ver - 0.5 * p.verify_sink * target_mm):
+            # the reading narrowed back to a level verified over the sheet: over it again
+            self._release(s)
+            return OK
+        due = p.hold_retry_s * 2.0 ** self._held_n
+        if self._t - self._held_t >= due and abs(self._slow_mm_s) < p.verify_speed_mm_s:
+            self._held_t = self._t
+            self._held_n += 1
+            self._strikes = p.verify_confirm - 1  # one move up per retry, not verify_confirm
+            self._start_verify(at_start=self._held_approach)
+            return self._verify_tick(enc_mm, gap_mm, False)
+        return EDGE
+
+    def _release(self, level_mm: float) -> None:
+        """End an edge hold: closing in from here is probed as after a fast fall."""
+        self.held = False
+        self.reason = ''
+        self._strikes = self._doubt_n = 0
+        self._doubt_mm = math.inf
+        self._at_start = False
+        self.surface_mm_s = self._slow_mm_s = 0.0
+        self.surface_ref_mm = level_mm  # the far drop's reference restarts here
+        self.probing = True
+        self._probe_ticks = 0
+        self.travel.reset()

@@ -114,7 +114,7 @@ class FollowController:
                  follow: FollowParams | None = None, *, mode: str | None = None) -> None:
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
                        'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'sink_hold': 0,
-                       'verify': 0, 'edge_gain': 0}
+                       'verify': 0, 'edge_hold': 0}
         """Ticks run on the encoder-predicted gap, samples rejected per cause."""
         self._input_gate = InputGate(self.counts)
         self._partner = CncPartner()  # the CNC interface (.cnc)
@@ -584,8 +584,12 @@ class FollowController:
         prev_gap, prev_enc = self._last_gap, self._last_enc
         self._last_gap, self._last_enc = gap, enc
         why = self._guard.far_drop(enc, gap)
-        if why:
-            return self._fault(why)
+        if why:  # held as an edge from this tick (edge.py): nothing further down
+            self.counts['edge_hold'] += 1
+            self._partner.void_lock(why)
+            if self._u < 0.0:
+                self._u = 0.0
+            self._override = -math.inf
         return LAW[self._state](self, gap, enc, self._law_target(gap), prev_gap, prev_enc)
 
     def _edge_verdict(self, gap: float, enc: float) -> float | None:
@@ -627,8 +631,20 @@ class FollowController:
                 return self._move_up(guard.verify_velocity_mm_s, enc)
             self._override = guard.verify_velocity_mm_s
         if verdict == EDGE:
-            self.counts['edge_gain'] += 1
-            return self._fault(guard.reason)
+            # at an edge: held (only commands away from the sheet) until the guard finds the
+            # nozzle over the sheet again; not a latched FAULT (edge.py)
+            self.counts['edge_hold'] += 1
+            self._partner.void_lock(guard.reason)
+            if self._u < 0.0:
+                self._u = 0.0
+            if not self._followed:
+                self._approach_ticks += 1  # held time counts toward the not-followed alarm
+                if self._approach_ticks >= self._timeout_ticks:
+                    return self._fault(f'{self._timeout_reason(gap - self._target_eff)}; '
+                                       f'{guard.reason}')
+            if st == PREINTERPOLATE:
+                return self._hold_up_only()
+            self._override = -math.inf
         self._limiter.down_cap_mm_s = guard.down_cap_mm_s
         return None
 
