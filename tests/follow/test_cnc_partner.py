@@ -408,3 +408,48 @@ def test_going_down_is_limited_apart_from_going_up():
     i1 = loop.i
     loop.run(600)
     assert max(loop.u[i1:]) > 10.0
+
+
+# ------------------------------------------------------------------------------ adaptive feed
+def _partner(**cnc):
+    from ladrc_follow.control.follow.cnc import CncPartner
+
+    p = ControllerParams()
+    p = p.replace(cnc=replace(p.cnc, **cnc))
+    partner = CncPartner()
+    partner.configure(p, H)
+    return partner
+
+
+def _request(partner, t: float, gap: float, seq: int, segment=Segment.CUT) -> float:
+    partner.begin(False)
+    partner.motion(t, CncInput(seq, t, int(segment), True, 1, 100.0, 100.0, 50.0, math.inf))
+    partner.judge(t, gap, 1.0, True)
+    return partner.answers(LADRC, True, False)['feed_override_request']
+
+
+def test_adaptive_feed_asks_less_feed_only_when_too_close_and_recovers_at_its_rate():
+    assert _request(_partner(), 0.0, 0.5, 1) == 1.0  # off by default: never asked
+    partner = _partner(feed_override_min=0.5, feed_override_error=0.1,
+                       feed_override_recover_s=0.2)
+    assert _request(partner, 0.0, 0.95, 1) == 1.0   # within the error: nothing asked
+    assert _request(partner, H, 1.5, 2) == 1.0      # too wide (a kerf, a falling sheet): nothing
+    assert _request(partner, 2 * H, 0.85, 3) == pytest.approx(0.75)  # 15 %: halfway down
+    assert _request(partner, 3 * H, 0.6, 4) == 0.5  # never below the minimum
+    # back at the target: up again by (1 - min) per recover_s, not at once
+    got = [_request(partner, (4 + k) * H, 1.0, 5 + k) for k in range(500)]
+    assert np.all(np.diff(got) >= 0.0) and got[0] < 0.51
+    k_one = int(np.argmax(np.asarray(got) >= 1.0))
+    assert abs(k_one * H - 0.2) <= 2 * H
+    assert _request(partner, 1.0, 0.6, 600, Segment.RAPID) == 1.0  # only while cutting
+
+
+def test_the_job_planner_runs_at_the_override_share_of_the_feed():
+    from ladrc_sim.job.motion import PathMotion
+
+    full = PathMotion(np.array([[0.0, 0.0], [100.0, 0.0]]), 200.0, 2000.0, 0.05, H)
+    half = PathMotion(np.array([[0.0, 0.0], [100.0, 0.0]]), 200.0, 2000.0, 0.05, H)
+    for _ in range(400):
+        full.step()
+        half.step(override=0.5)
+    assert full.v == pytest.approx(200.0) and half.v == pytest.approx(100.0)

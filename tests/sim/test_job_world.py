@@ -95,6 +95,30 @@ def test_the_shipped_nest_is_as_its_job_says():
     assert any(c.micro_joints for c in p.contours if not c.inner)
 
 
+def test_a_drawing_from_another_tool_is_read_and_placed_by_the_work_offset():
+    job = load_job(JOBS / 'ezdxf_forms.yaml')  # forms.dxf of the ezdxf repository
+    p = job.program()
+    assert p.units == 'mm' and len(p.contours) == 40 and len(p.parts) == 23 and not p.ignored
+    assert sum(c.inner for c in p.contours) == 40 - 23  # the holes inside parts, cut first
+    as_drawn = load_program(job.dxf, kerf_mm=job.kerf_mm)  # no sheet, no offset
+    ox, oy = job.dxf_origin_mm
+    assert p.bounds_mm == pytest.approx(np.add(as_drawn.bounds_mm, (ox, oy, ox, oy)))
+    assert as_drawn.bounds_mm[1] < 0.0 < p.bounds_mm[1]  # drawn below y = 0, cut on the sheet
+
+
+def test_a_contour_off_the_sheet_is_refused_in_one_line(tmp_path):
+    text = (JOBS / 'ezdxf_forms.yaml').read_text().replace(
+        'dxf: ezdxf_forms.dxf', f'dxf: {JOBS / "ezdxf_forms.dxf"}')
+    bad = tmp_path / 'off.yaml'
+    bad.write_text(text.replace('[280, 1050]', '[600, 1050]'))
+    with pytest.raises(JobError) as err:
+        load_job(bad).program()
+    assert 'is not on the sheet' in str(err.value) and '\n' not in str(err.value)
+    bad.write_text(text.replace('[280, 1050]', '[280, .nan]'))
+    with pytest.raises(JobError, match=r'dxf_origin_mm: \[x, y\] in mm'):
+        load_job(bad)
+
+
 def test_a_bad_job_file_is_one_line(tmp_path):
     bad = tmp_path / 'bad.yaml'
     bad.write_text('name: x\ndxf: none.dxf\nsheet: {width_mm: 100, height_mm: 100}\n')
@@ -126,6 +150,12 @@ def test_the_plate_job_runs_to_its_end_without_contact_and_above_the_bar(plate):
     assert f['holds']['edge_ahead']['count'] >= 1  # before the end of a contour: its own kerf
 
 
+def test_the_thin_warped_sheet_runs_to_its_end_above_the_bar():
+    f = run('thin_warped').figures  # sag 2 mm, a corner warped up 6 mm, feed 200 mm/s
+    assert f['finished'] and f['faults'] == 0 and f['contacts'] == 0 and f['pierces'] == 6
+    assert f['min_gap_over_target_cutting'] >= 0.7
+
+
 def test_in_position_before_xy_moves_in_every_contour(plate):
     s = plate.series
     cut = (s['segment'] == 2).astype(int)
@@ -146,7 +176,7 @@ def test_corner_lock_holds_the_dive_at_corners_smaller(plate):
 def test_leapfrog_saves_job_time_against_lift_stop_move(plate):
     lift = run('plate_holes', cnc={'leapfrog': False})
     assert lift.figures['finished'] and lift.figures['contacts'] == 0
-    assert plate.figures['job_s'] < lift.figures['job_s']
+    assert plate.figures['job_time_s'] < lift.figures['job_time_s']
 
 
 def test_a_tipped_part_ends_in_the_retract_and_a_feed_hold():

@@ -11,7 +11,7 @@ setup(
     # The scenario library ships inside the Python package (importlib.resources finds it) and
     # under share/ for users who look for it the ROS way.
     package_data={'ladrc_sim.headless': ['scenarios/*.yaml'],
-                  'ladrc_sim.job': ['jobs/*.yaml', 'jobs/*.dxf']},
+                  'ladrc_sim.job': ['jobs/*.yaml', 'jobs/*.dxf', 'jobs/*.LICENSE']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -50,6 +50,17 @@ class CncParams(Section):
                                      'to the arrival level (at least 4x the drive velocity '
                                      "loop's lag, or the lag carries the axis below it)",
                                      ge=0.005, le=1.0)
+    feed_override_min: float = param(1.0, '1', 'adaptive feed: the lowest fraction of the '
+                                     'programmed feed asked for while the gap is too close '
+                                     '(feed_override_request); 1 = off (off by default: no '
+                                     'gain measured, docs/job-world.md)', ge=0.05, le=1.0,
+                                     seed=_PLASMAC)
+    feed_override_error: float = param(0.1, '1', 'adaptive feed: a gap this fraction of the '
+                                       'target below it asks for less feed, down to '
+                                       'feed_override_min at twice it', gt=0.0, le=1.0)
+    feed_override_recover_s: float = param(0.2, 's', 'adaptive feed: once the error is small '
+                                           'the request returns from feed_override_min to 1 '
+                                           'in this time (down: at once)', gt=0.0, le=10.0)
     max_lift_mm: float = param(50.0, 'mm', 'largest lift (by distance, or height above the '
                                'reading)', gt=0.0, le=500.0)
 

@@ -8,7 +8,8 @@ contour at the feed (:mod:`.motion`), beam off at micro-joints and at the end. I
 motion every ``cycle_ticks`` (``CncMotion``: segment, beam, feeds, distance to the segment's
 end, and the distance to the first void ahead under the nozzle: the outline, a hole or an
 earlier kerf, which it computes from the job's sheet). A feed-hold request stops the XY feed
-while it lasts; a FAULT of the controller aborts the job (the CNC stops and says why).
+while it lasts, and a feed-override request (adaptive feed) scales the cutting feed
+(``honour_override``); a FAULT of the controller aborts the job (the CNC stops and says why).
 
 Plain Python; the same class runs headless (:mod:`.runner`) and behind the live CNC node.
 """
@@ -47,6 +48,7 @@ class CncSettings:
     look_ahead_mm: float = 30.0     # edge-ahead look-ahead
     cycle_ticks: int = 2            # CNC cycle in controller ticks (2: 1 kHz)
     wait_timeout_s: float = 10.0    # a wait for the controller longer than this aborts the job
+    honour_override: bool = True    # scale the cutting feed by the controller's request
 
 
 @dataclass
@@ -88,6 +90,7 @@ class Cnc:
         self._pierce_seen = False
         self._lift_target = start_xy
         self._lead_mm = 0.0
+        self._ovr = 1.0            # the feed override of the cut (the controller's request)
 
     # ---- the sequence ------------------------------------------------------------------------
     def _cmd(self, name: str, **kw: Any) -> None:
@@ -215,7 +218,8 @@ class Cnc:
             else:
                 self._waited('the pierce')
         elif phase == 'cut':
-            self.x, self.y = self.move.step(hold)
+            self._ovr = self._override(answers)
+            self.x, self.y = self.move.step(hold, self._ovr)
             c = self.program.contours[self._k]
             s_contour = self.move.s - self._lead_mm
             self.beam = not any(a <= s_contour <= b for a, b in c.micro_joints)
@@ -228,6 +232,18 @@ class Cnc:
             return None
         return self.sample(self._tick * self.h)
 
+    @property
+    def feed_mm_s(self) -> float:
+        """Return the commanded path speed after the feed override (what ``CncMotion`` says)."""
+        return self.commanded_feed * (self._ovr if self.segment == CUT else 1.0)
+
+    def _override(self, answers: dict) -> float:
+        """Return the feed fraction the controller asks for, within 0.05..1 (1: not honoured)."""
+        r = answers.get('feed_override_request', 1.0)
+        if not self.s.honour_override or not isinstance(r, float) or not r == r:
+            return 1.0
+        return min(max(r, 0.05), 1.0)
+
     def sample(self, t_s: float) -> CncInput:
         """Return the CNC's motion sample now (``CncMotion`` values; stamp = ``t_s``)."""
         self._seq += 1
@@ -238,5 +254,5 @@ class Cnc:
         if self.segment == CUT and move is not None:
             step = 0.5
             ahead = self.void_ahead(move.ahead(self.s.look_ahead_mm, step), step)
-        return CncInput(self._seq, t_s, self.segment, self.beam, self.contour,
-                        self.commanded_feed, v, left, ahead)
+        return CncInput(self._seq, t_s, self.segment, self.beam, self.contour, self.feed_mm_s, v,
+                        left, ahead)

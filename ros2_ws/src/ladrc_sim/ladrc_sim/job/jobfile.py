@@ -6,7 +6,8 @@ to the job file), ``sheet`` (``width_mm``, ``height_mm``, ``surface``: models/sh
 ``micro_joints_per_part``), ``cnc`` (job/cnc.py ``CncSettings``), ``controller`` (parameter
 overrides of the follow controller, ``name: value``), ``sensor`` (models/sensor.py
 ``SensorParams``), ``tip_parts`` and ``tip_rise_mm`` (parts that tip up when cut free),
-``start_xy`` and ``start_height_mm``, ``seed``, and ``limits`` (where the job's geometry makes
+``start_xy`` and ``start_height_mm``, ``dxf_origin_mm`` (where the drawing's (0, 0) lies on
+the sheet: the CNC's work offset), ``seed``, and ``limits`` (where the job's geometry makes
 the safety bar impossible: the bound that proves it, docs/job-world.md). Every problem is one
 line naming the file and the key (:class:`JobError`).
 """
@@ -55,6 +56,7 @@ class Job:
     tip_rise_mm: float = 3.0
     start_xy: tuple[float, float] = (0.0, 0.0)
     start_height_mm: float = 10.0
+    dxf_origin_mm: tuple[float, float] = (0.0, 0.0)
     seed: int = 1
     limits: dict[str, Any] = field(default_factory=dict)
 
@@ -71,7 +73,8 @@ class Job:
             program = load_program(self.dxf, kerf_mm=self.kerf_mm, lead_in_mm=self.lead_in_mm,
                                    micro_joint_mm=self.micro_joint_mm,
                                    micro_joints_per_part=self.micro_joints_per_part,
-                                   sheet_mm=(self.width_mm, self.height_mm))
+                                   sheet_mm=(self.width_mm, self.height_mm),
+                                   origin_mm=self.dxf_origin_mm)
         except ProgramError as exc:
             raise JobError(f'{self.path}: {exc}') from None
         object.__setattr__(self, '_program', program)  # a frozen job: its program, once
@@ -131,7 +134,18 @@ def _section(cls: type, data: Any, where: str) -> Any:
 
 
 _TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
-        'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'seed', 'limits')
+        'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'dxf_origin_mm', 'seed',
+        'limits')
+
+
+def _xy(data: dict, key: str, path: Path) -> tuple[float, float]:
+    """Return ``data[key]`` as a point [x, y] in mm (default the origin); one line if not."""
+    v = data.get(key, [0.0, 0.0])
+    if not (isinstance(v, list) and len(v) == 2 and all(
+            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
+            for x in v)):
+        raise JobError(f'{path}: {key}: [x, y] in mm, got {v!r}')
+    return float(v[0]), float(v[1])
 
 
 def load_job(path: str | Path) -> Job:
@@ -181,9 +195,8 @@ def load_job(path: str | Path) -> Job:
     if not isinstance(tips, list) or any(isinstance(x, bool) or not isinstance(x, int)
                                          for x in tips):
         raise JobError(f'{path}: tip_parts: a list of part indices')
-    start = data.get('start_xy', [0.0, 0.0])
-    if not (isinstance(start, list) and len(start) == 2):
-        raise JobError(f'{path}: start_xy: [x, y] in mm')
+    start = _xy(data, 'start_xy', path)
+    origin = _xy(data, 'dxf_origin_mm', path)
     return Job(path=path, name=str(data['name']), description=str(data.get('description', '')),
                dxf=dxf, width_mm=float(w), height_mm=float(h),
                surface=_section(SurfaceParams, sheet.get('surface'), f'{path}: sheet.surface'),
@@ -194,6 +207,6 @@ def load_job(path: str | Path) -> Job:
                controller=dict(controller),
                sensor=_section(SensorParams, data.get('sensor'), f'{path}: sensor'),
                tip_parts=tuple(tips), tip_rise_mm=float(data.get('tip_rise_mm', 3.0)),
-               start_xy=(float(start[0]), float(start[1])),
+               start_xy=start, dxf_origin_mm=origin,
                start_height_mm=float(data.get('start_height_mm', 10.0)),
                seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}))

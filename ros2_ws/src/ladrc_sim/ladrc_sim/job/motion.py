@@ -62,8 +62,11 @@ class PathMotion:
         self._i = 0         # current segment
         self.done = self.total_mm <= 0.0
 
-    def step(self, hold: bool = False) -> tuple[float, float]:
-        """Advance one tick (``hold``: brake to a stop and stay); return the position."""
+    def step(self, hold: bool = False, override: float = 1.0) -> tuple[float, float]:
+        """Advance one tick (``hold``: brake to a stop and stay); return the position.
+
+        ``override``: the fraction of the feed to run at (a feed override, 0..1).
+        """
         if not self.done:
             a, h = self.a, self.h
             cum = self._cum
@@ -73,7 +76,7 @@ class PathMotion:
             to_vertex = cum[i + 1] - self.s
             to_end = self.total_mm - self.s
             v_next = self.v_vertex[i + 1]
-            cap = 0.0 if hold else min(self.feed, _brake(v_next, to_vertex, a, h),
+            cap = 0.0 if hold else min(self.feed * override, _brake(v_next, to_vertex, a, h),
                                        _brake(0.0, to_end, a, h))
             v_new = min(cap, self.v + a * h) if cap >= self.v else max(cap, self.v - a * h)
             ds = v_new * h  # the speed of this tick (the braking bound counts the same way)

@@ -188,8 +188,12 @@ def _flatten(e, step: float) -> np.ndarray:
     return pts
 
 
-def _pieces(doc, scale: float, tol: float, name: str) -> tuple[list, list, list[str]]:
-    """Return closed rings and open pieces as (drawing order, (n, 2) mm), and ignored types."""
+def _pieces(doc, scale: float, tol: float, name: str,
+            origin_mm: tuple[float, float] = (0.0, 0.0)) -> tuple[list, list, list[str]]:
+    """Return closed rings and open pieces as (drawing order, (n, 2) mm), and ignored types.
+
+    The points are on the sheet: the drawing's (0, 0) lies at ``origin_mm``.
+    """
     closed, open_, ignored = [], [], set()
     for order, e in enumerate(doc.modelspace()):
         kind = e.dxftype()
@@ -197,7 +201,7 @@ def _pieces(doc, scale: float, tol: float, name: str) -> tuple[list, list, list[
             ignored.add(kind if kind != 'POLYLINE' else 'POLYLINE (3D or mesh)')
             continue
         try:
-            pts = _flatten(e, tol / scale) * scale
+            pts = _flatten(e, tol / scale) * scale + origin_mm
         except Exception as exc:  # a broken entity is the drawing's problem
             text = ' '.join(str(exc).split()) or type(exc).__name__
             raise ProgramError(f'{name}: {kind} #{e.dxf.handle} cannot be flattened: '
@@ -434,8 +438,11 @@ def _order(groups: list, enclosing: dict[int, int]) -> list[Contour]:
 def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
                  micro_joint_mm: float = 0.0, micro_joints_per_part: int = 0,
                  tolerance_mm: float = 0.01,
-                 sheet_mm: tuple[float, float] | None = None) -> Program:
+                 sheet_mm: tuple[float, float] | None = None,
+                 origin_mm: tuple[float, float] = (0.0, 0.0)) -> Program:
     """Read the DXF ``path`` and make its part program (module docstring).
+
+    ``origin_mm``: where the drawing's (0, 0) lies on the sheet (the CNC's work offset).
 
     Every bad input (arguments, file, drawing) raises :class:`ProgramError`, one line.
     """
@@ -444,7 +451,7 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
                      tolerance_mm, sheet_mm)
     doc = _read(path, name)
     code, units, scale = _units(doc, name)
-    closed, open_, ignored = _pieces(doc, scale, tolerance_mm, name)
+    closed, open_, ignored = _pieces(doc, scale, tolerance_mm, name, origin_mm)
     drawn = [p for _, p in closed + open_]
     if not drawn:
         raise ProgramError(f'{name}: nothing to cut: no line, arc, circle, ellipse, spline or '
@@ -494,8 +501,22 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
         joints = _micro_joints(pts, micro_joints_per_part, micro_joint_mm)
         groups.append((holes, Contour(_frozen(pts), False, k, _frozen(lead), region, joints)))
     order = _order(groups, {index[p]: index[q] for p, q in enclosing.items()})
+    if sheet_mm is not None:
+        _check_on_sheet(order, sheet_mm, name)
     return Program(name, units, scale, tuple(order), tuple(parts),
                    (float(minx), float(miny), float(maxx), float(maxy)), tuple(ignored))
+
+
+def _check_on_sheet(contours: list[Contour], sheet_mm: tuple[float, float], name: str) -> None:
+    """Refuse a program with a cut path (lead-in included) off the sheet, one line."""
+    for k, c in enumerate(contours, 1):
+        pts = np.vstack([c.lead_in_mm, c.points_mm])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        if lo[0] < 0.0 or lo[1] < 0.0 or hi[0] > sheet_mm[0] or hi[1] > sheet_mm[1]:
+            raise ProgramError(
+                f'{name}: contour {k} (part {c.part}) is not on the sheet: its path spans x '
+                f'{lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f} mm, the sheet 0..'
+                f'{sheet_mm[0]:g} x 0..{sheet_mm[1]:g} mm (dxf_origin_mm places the drawing)')
 
 
 def ring_of(points: np.ndarray) -> LinearRing:

@@ -33,7 +33,7 @@ KERF_STEP_MM = 0.2
 SERIES = ('t_s', 'x_mm', 'y_mm', 'nozzle_mm', 'true_gap_mm', 'reading_mm', 'reading_valid',
           'coverage',
           'command_mm_s', 'state', 'substate', 'segment', 'contour', 'beam', 'target_gap_mm',
-          'feed_mm_s', 'commanded_feed_mm_s')
+          'feed_mm_s', 'commanded_feed_mm_s', 'feed_override')
 
 
 @dataclass
@@ -158,7 +158,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
             rows.append(answers)
         row = (t, x, y, z, true_gap, reading, valid, cov, u, answers['state'], answers['substate'],
                cnc.segment, cnc.contour, cnc.beam, answers['target_gap_mm'],
-               cnc.move.v if cnc.move is not None else 0.0, cnc.commanded_feed)
+               cnc.move.v if cnc.move is not None else 0.0, cnc.feed_mm_s,
+               answers['feed_override_request'])
         for key, value in zip(SERIES, row, strict=True):
             cols[key][i] = value
         last = i
@@ -228,7 +229,7 @@ def job_figures(series: dict[str, np.ndarray], h_s: float, log: Any, n_contours:
     faults = _runs(state == int(FollowState.FAULT))
     contacts = _runs(gap <= 0.0)
     return {
-        'job_s': round(len(seg) * h_s, 4),
+        'job_time_s': round(len(seg) * h_s, 4),
         'cutting_s': round(float(cutting.sum()) * h_s, 4),
         'rapid_s': round(float((seg == int(Segment.RAPID)).sum()) * h_s, 4),
         'pierce_s': round(float((seg == int(Segment.PIERCE)).sum()) * h_s, 4),
@@ -241,6 +242,10 @@ def job_figures(series: dict[str, np.ndarray], h_s: float, log: Any, n_contours:
         'min_gap_over_target_cutting': round(float(np.nanmin(ratio)), 4),
         'min_true_gap_per_contour_mm': per_contour,
         'feed_hold_s': round(log.feed_hold_ticks * h_s, 4),
+        'feed_override_s': round(float((cutting & (series['feed_override'] < 1.0)).sum()) * h_s,
+                                 4),
+        'feed_override_min': round(float(np.min(series['feed_override'][cutting])), 3)
+        if cutting.any() else 1.0,
         'corner_s': round(float(slow.sum()) * h_s, 4),
         'corner_max_down_mm': round(float(np.max(down)), 4) if down.size else 0.0,
         'finished': log.finished,

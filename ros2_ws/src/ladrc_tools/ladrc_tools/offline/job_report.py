@@ -55,7 +55,8 @@ def draw_job(job: Any, result: Any, path: Path) -> None:
         ax.set_ylabel('y [mm]')
         ax.legend(loc='upper right', fontsize=7)
     f = result.figures
-    fig.suptitle(f'{job.name}: {f["job_s"]:g} s, {f["pierces"]} pierces, {f["faults"]} faults, '
+    fig.suptitle(f'{job.name}: {f["job_time_s"]:g} s, {f["pierces"]} pierces, '
+                 f'{f["faults"]} faults, '
                  f'{f["contacts"]} contacts, min gap/target {f["min_gap_over_target_cutting"]}')
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -21,7 +21,13 @@ change of the target. The anchors (plasmac ``plasmac.comp``, Beckhoff TF5200/TF5
   reported can be judged any more;
 * pierce: each stage height approached, in position, dwelled at; then the cut gap, in position,
   and the THC delay (held) before the follow closes in (plasmac pierce delay / THC delay);
-* a CNC that moves XY before the pierce is complete is asked to hold its feed, with the reason.
+* a CNC that moves XY before the pierce is complete is asked to hold its feed, with the reason;
+* adaptive feed: while cutting and followed, a gap more than ``feed_override_error`` x the
+  target below the target asks for less feed (``feed_override_request``), down to
+  ``feed_override_min`` at twice that, back to 1 within ``feed_override_recover_s`` once it is
+  small (plasmac's adaptive-feed request): more time for the axis where the sheet rises faster
+  than it follows. A gap too wide (the sheet falling away, a kerf) asks for nothing: slowing
+  would not make it safer.
 
 Plain Python scalars, one tick at a time; no geometry (the CNC computes every distance).
 """
@@ -73,6 +79,7 @@ class CncPartner:
         self._move_sub = SUB_NONE  # its sub-state: SUB_LIFT or SUB_LEAPFROG
         self._inpos = 0            # ticks within tolerance of the target
         self._inpos_target = math.nan
+        self.feed_override = 1.0   # fraction of the programmed feed asked for (adaptive feed)
 
     def configure(self, p, h_s: float) -> None:
         """Take the ``cnc`` section and the in-position rule (pid.followed_*) of a set."""
@@ -162,6 +169,7 @@ class CncPartner:
         self._corner = False
         self._edge_left_mm = 0.0
         self._inpos = 0
+        self.feed_override = 1.0
 
     # ---- the tick -------------------------------------------------------------------------
     def begin(self, idle: bool) -> None:
@@ -226,6 +234,7 @@ class CncPartner:
             self.sub, self.reason, self._holding = SUB_HOLD, self._hold, True
         if self.sub == SUB_NONE and c.seq != 0:
             self._judge_motion(t_s, settled)
+        self._adapt_feed(gap_mm, target_mm, settled)
         self.in_position = at_target and self._phase in (-1, _STAGE_DWELL, _THC_DELAY)
         self.ready_to_move = settled and self._phase not in (
             _STAGE_APPROACH, _STAGE_DWELL, _CUT_APPROACH)
@@ -269,6 +278,22 @@ class CncPartner:
                 self.sub, self._holding = SUB_CORNER_LOCK, True
                 self.reason = (f'corner lock: feed {c.actual_feed_mm_s:.3g} of {cmd:.3g} mm/s '
                                f'({ratio:.0%} < {p.corner_unlock_ratio:.0%})')
+
+    def _adapt_feed(self, gap_mm: float, target_mm: float, settled: bool) -> None:
+        """Set :attr:`feed_override` from this tick's gap error (module docstring)."""
+        p, c = self.p, self.cnc
+        want = 1.0
+        if (p.feed_override_min < 1.0 and settled and c.seq != 0 and c.segment == SEG_CUT
+                and c.beam_on and self.sub in (SUB_NONE, SUB_CORNER_LOCK)):
+            e0 = p.feed_override_error
+            e = (target_mm - gap_mm) / target_mm  # closer than the target (NaN: none asked)
+            if e > e0:
+                want = max(p.feed_override_min, 1.0 - (1.0 - p.feed_override_min) * (e - e0) / e0)
+        if want < self.feed_override:
+            self.feed_override = want
+        elif self.feed_override < 1.0:
+            up = (1.0 - p.feed_override_min) * self._h / p.feed_override_recover_s
+            self.feed_override = min(want, self.feed_override + up)
 
     def _pierce(self, at_target: bool) -> float:
         """Advance the pierce program; return the next target (NaN: unchanged)."""
@@ -323,7 +348,7 @@ class CncPartner:
             ready = in_position or state == _IDLE
         return dict(substate=sub, hold_reason=reason, in_position=in_position,
                     ready_to_move=ready, feed_hold_request=feed_hold,
-                    feed_override_request=1.0,
+                    feed_override_request=self.feed_override,
                     cnc_seq=c.seq, cnc_stamp_s=c.stamp_s, cnc_segment=c.segment,
                     cnc_beam_on=c.beam_on, cnc_contour=c.contour,
                     cnc_commanded_feed_mm_s=c.commanded_feed_mm_s,
