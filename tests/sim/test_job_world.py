@@ -214,3 +214,29 @@ def test_a_job_bag_replays_bit_for_bit(tmp_path):
     with open_bag(tmp_path / 'bag') as bag:
         report, _ = analyse(bag)
     assert report['holds']['pierce']['count'] >= 1 and report['holds']['retract']['count'] == 1
+
+
+def test_ladrc_report_draws_and_measures_the_job_from_its_bag_alone(tmp_path):
+    import json
+
+    from ladrc_tools.cli_job import load, write_bag
+    from ladrc_tools.cli_job import run as run_cli
+    from ladrc_tools.offline.report import write_report
+
+    job = load('tipping_pair')
+    result = run_cli(job, [], record_internals=True)
+    write_bag(job, result, tmp_path / 'bag')
+    out = write_report(tmp_path / 'bag', tmp_path / 'report')
+    assert (out / 'job.png').is_file()
+    got = json.loads((out / 'report.json').read_text())['job']
+    want = result.figures
+    assert got['name'] == 'tipping_pair'
+    f = got['figures']
+    for key in ('pierces', 'faults', 'contacts', 'min_true_gap_cutting_mm', 'job_time_s',
+                'holds', 'finished'):
+        assert f[key] == want[key], key
+    assert f['aborted'].startswith('the height controller faulted: collision')
+    # segment times from the CNC values the controller used: a CNC cycle per boundary at most
+    for key in ('cutting_s', 'rapid_s', 'pierce_s'):
+        assert abs(f[key] - want[key]) <= 0.002 * 8, key
+    assert '## Job `tipping_pair`' in (out / 'report.md').read_text()

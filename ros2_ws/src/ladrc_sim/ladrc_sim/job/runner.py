@@ -78,6 +78,7 @@ class JobRun:
         self.true_gap_mm = s['true_gap_mm']
         self.sheet_mm = s['nozzle_mm'] - s['true_gap_mm']
         self.coverage = s['coverage']
+        self.x_mm, self.y_mm = s['x_mm'], s['y_mm']  # the nozzle in XY (SimTruth)
         self.command_mm_s = s['command_mm_s']
         self.target_gap_mm = s['target_gap_mm']
         self.internals = result.internals

@@ -218,7 +218,8 @@ def _truth_rows(s: _Series, result: Any, store: Any) -> list[bytes]:
               'true_gap_mm': result.true_gap_mm, 'sheet_mm': result.sheet_mm,
               'nozzle_mm': result.nozzle_mm, 'edge_coverage': result.coverage,
               'plate_velocity_mm_s': np.nan if plate_v is None else plate_v,
-              'collision': s.collision, 'x_mm': np.nan, 'y_mm': np.nan})
+              'collision': s.collision, 'x_mm': getattr(result, 'x_mm', np.nan),
+              'y_mm': getattr(result, 'y_mm', np.nan)})  # XY: a job's run
 
 
 def _event_rows(s: _Series, store: Any, params_yaml: str) -> list[tuple[int, bytes]]:

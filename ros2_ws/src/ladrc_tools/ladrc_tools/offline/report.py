@@ -163,11 +163,12 @@ class _StatusPass:
             return st['gap_mm'].astype(float), np.zeros(t.size, dtype=bool)
         gap, collision = self.truth.join(st['stamp_s'])
         series['true_gap_mm'] = gap
-        if self.n_done:  # central differences across the slice boundary
-            t0, gap0 = self.prev_rate
-            rate = np.gradient(np.r_[gap0, gap], np.r_[t0, t])[1:]
-        else:
-            rate = np.gradient(gap, t) if t.size > 1 else np.zeros(t.size)
+        with np.errstate(invalid='ignore'):  # no material under the face: an inf gap, NaN rate
+            if self.n_done:  # central differences across the slice boundary
+                t0, gap0 = self.prev_rate
+                rate = np.gradient(np.r_[gap0, gap], np.r_[t0, t])[1:]
+            else:
+                rate = np.gradient(gap, t) if t.size > 1 else np.zeros(t.size)
         series['true_gap_rate'] = rate
         self.prev_rate = (float(t[-1]), float(gap[-1]))
         return gap, collision
@@ -406,6 +407,12 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def _fmt_nested(v: Any) -> str:
+    if isinstance(v, dict):
+        return ', '.join(f'{k}: {_fmt_nested(x)}' for k, x in v.items())
+    return _fmt(v)
+
+
 def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
     lines = [f'# Report: {Path(report["bag"]).name}', '',
              f'- source: {report["source"]}' + (f', scenario `{report["scenario"]}`'
@@ -426,6 +433,10 @@ def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
         lines += ['', 'Sub-states (FollowStatus.substate): '
                   + ', '.join(f'{name} {v["count"]}x, {v["seconds"]:g} s'
                               for name, v in report['holds'].items())]
+    job = report.get('job')
+    if job:
+        lines += ['', f'## Job `{job["name"]}`', '', '| figure | value |', '| --- | --- |']
+        lines += [f'| {k} | {_fmt_nested(v)} |' for k, v in job['figures'].items()]
     lines += ['', '## Plots', '']
     lines += [f'![{p[:-4]}]({p})' for p in pngs]
     return '\n'.join(lines) + '\n'
@@ -443,13 +454,36 @@ def write_report(bag_path: str | Path, out_dir: str | Path | None = None,
         raise BagError(f'{out} exists already: choose another output folder (-o)')
     with open_bag(bag_path) as bag:
         report, series = analyse(bag, progress)
+        job = _job(bag)
     with building(out) as tmp:
         pngs = _plots(series, report, tmp)
+        if job is not None:  # a cutting job's bag: the job drawn, its figures
+            from .job_report import draw_job
+
+            report['job'] = {'name': job.job.name, 'figures': job.figures}
+            draw_job(job.job, job, tmp / 'job.png')
+            pngs.append('job.png')
         report['plots'] = pngs
         (tmp / 'report.json').write_text(json.dumps(strict_json(report), indent=1) + '\n',
                                          encoding='utf-8')
         (tmp / 'report.md').write_text(_markdown(report, pngs), encoding='utf-8')
     return out
+
+
+def _job(bag: Bag) -> Any:
+    """Return the bag's cutting job read back (:mod:`.job_bag`), None when it is not a job's."""
+    from .job_bag import job_in_bag
+
+    text = read_text_topic(bag, 'run/parameters') or ''
+    try:
+        ratio = _find_key(yaml.safe_load(text), 'corner_lock_ratio') if text else None
+    except yaml.YAMLError:
+        ratio = None
+    try:
+        return job_in_bag(bag, ratio if ratio is not None else 0.8)
+    except ValueError as exc:  # the job's texts do not load (JobError: one line)
+        raise BagError(f'{bag.path}: run/scenario holds a job that does not load: '
+                       f'{" ".join(str(exc).split())}') from None
 
 
 def strict_json(v: Any) -> Any:
