@@ -820,7 +820,14 @@ def main() -> None:
     headless_rows()
     tried, accepted, crashes = parameter_fuzz(rng)
     cnc_fuzz(rng)
-    live = {} if a.skip_live else live_rows(a.load_s, a.clients_s)
+    live: dict = {}
+    live_error = ''
+    if not a.skip_live:
+        try:
+            live = live_rows(a.load_s, a.clients_s)
+        except (RuntimeError, AssertionError) as exc:  # a live row could not run: say which
+            live_error = ' '.join(str(exc).split())[:300] or type(exc).__name__
+            print(f'live rows stopped: {live_error}')
     live_tried, live_accepted = live.get('live_params', (0, 0))
     summary = {
         'contacts': sum(1 for r in ROWS if r.get('contact') is True),
@@ -848,10 +855,13 @@ def main() -> None:
         'edge_rows_below_0_7_verification_off': [
             r['row'] for r in ROWS
             if r.get('gap_over_target', 1.0) < 0.7 and r['row'].endswith(OFF_LABEL)],
+        'live_error': live_error,  # '' when every live row ran
         'wall_s': round(time.monotonic() - t0, 1),
         'rows': ROWS,
     }
     print(json.dumps(summary, default=str))
+    if live_error:
+        sys.exit(1)
 
 
 if __name__ == '__main__':
