@@ -76,6 +76,7 @@ class DriveBridge:
         self.watchdog_trips = 0
         self._resumed_ns = 0
         self.seq = 0
+        self.truth_seq = 0  # sim/truth messages published (the step, but for silent cycles)
         self.truth_values = (math.nan,) * 6
         self.late_ticks = 0
         self._prev_enc = math.nan
@@ -189,14 +190,14 @@ class DriveBridge:
             while now < deadline:
                 time.sleep((deadline - now) * 1e-9)
                 now = time.monotonic_ns()
-        else:
-            if self.realtime and now - deadline > self.period_ns:
-                # Late by more than a cycle (this process was descheduled): shift the schedule
-                # instead of bursting through the missed cycles, as a drive synchronised to
-                # its bus would. A burst would count cycles in which no command could arrive
-                # and trip the watchdog on a stall of the simulator itself.
-                self.late_ticks += 1
-                self.t_start_ns += now - deadline
+        elif self.realtime and now - deadline > self.period_ns:
+            # Late by more than a cycle (this process was descheduled): the missed cycles run
+            # silently, back to back, so the simulated axis keeps wall time (it moved on at the
+            # held command meanwhile; the conformance kit measures its speed against the
+            # clock). Silent: nothing published (each topic's seq counts what it publishes),
+            # not counted by the watchdog (no command could arrive in them: the simulator's
+            # own stall must not trip it).
+            return self._silent_cycle(tick)
         if not self.running:
             raise StopSimulation()
         self.take_commands()  # what arrived until this cycle
@@ -229,6 +230,19 @@ class DriveBridge:
                     self.fault_reason = ''
         fault, reason = self._drive_fault(tick)
         node.publish_samples(self.seq, tick, fault, reason, self.truth_values)
+        self.seq += 1
+        if fault or not tick.drive_enabled or not self.cmd_enable:
+            return 0.0
+        self.cycles_by_commander[self.cmd_source] += 1
+        return self.cmd_velocity
+
+    def _silent_cycle(self, tick) -> float:
+        """Catch up a missed cycle: the plant steps on the held command, nothing published."""
+        if not self.running:
+            raise StopSimulation()
+        self.late_ticks += 1
+        self.take_commands()
+        fault, _ = self._drive_fault(tick)
         self.seq += 1
         if fault or not tick.drive_enabled or not self.cmd_enable:
             return 0.0

@@ -239,8 +239,9 @@ class SimNode(LoopNode):
             valid=bool(tick.gap_valid),
             status=int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1)))
         dt = tick.t_s - bridge._prev_t
-        # differentiated over the drive's cycle, as the headless bag writer does
-        velocity = ((tick.encoder_mm - bridge._prev_enc) / self.h_s
+        # differentiated since the last published sample: over the drive's cycle, as the
+        # headless bag writer does, or over the silent cycles caught up before it
+        velocity = ((tick.encoder_mm - bridge._prev_enc) / dt
                     if dt > 0 and math.isfinite(bridge._prev_enc) else 0.0)
         bridge._prev_enc, bridge._prev_t = tick.encoder_mm, tick.t_s
         fb = out['AxisFeedback'].pack(
@@ -258,10 +259,12 @@ class SimNode(LoopNode):
                 sec, nsec, step=seq, gap_seq=self.gap_seq, gap_fresh=gap_fresh,
                 encoder_seq=self.enc_seq, encoder_fresh=enc_fresh))
         true_gap, sheet, nozzle, coverage, plate_velocity = (float(v) for v in truth[:5])
+        # seq: truth messages published (the step in lock step; silent cycles send none)
         self.pub_truth.publish(out['SimTruth'].pack(
-            sec, nsec, seq=seq, true_gap_mm=true_gap, sheet_mm=sheet, nozzle_mm=nozzle,
-            edge_coverage=coverage, plate_velocity_mm_s=plate_velocity,
+            sec, nsec, seq=bridge.truth_seq, true_gap_mm=true_gap, sheet_mm=sheet,
+            nozzle_mm=nozzle, edge_coverage=coverage, plate_velocity_mm_s=plate_velocity,
             collision=bool(true_gap <= 0.0), x_mm=math.nan, y_mm=math.nan))
+        bridge.truth_seq += 1
 
     def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""
