@@ -241,8 +241,10 @@ class SimNode(LoopNode):
         dt = tick.t_s - bridge._prev_t
         # differentiated since the last published sample: over the drive's cycle, as the
         # headless bag writer does, or over the silent cycles caught up before it
-        velocity = ((tick.encoder_mm - bridge._prev_enc) / dt
-                    if dt > 0 and math.isfinite(bridge._prev_enc) else 0.0)
+        velocity = 0.0
+        if dt > 0 and math.isfinite(bridge._prev_enc):  # (dt NaN: the first sample)
+            cycles = max(1, round(dt / self.h_s))  # times h_s: bit for bit with headless
+            velocity = (tick.encoder_mm - bridge._prev_enc) / (cycles * self.h_s)
         bridge._prev_enc, bridge._prev_t = tick.encoder_mm, tick.t_s
         fb = out['AxisFeedback'].pack(
             sec, nsec, seq=self.enc_seq, position_mm=float(tick.encoder_mm),
