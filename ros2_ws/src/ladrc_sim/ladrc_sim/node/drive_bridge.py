@@ -242,6 +242,19 @@ class DriveBridge:
             raise StopSimulation()
         self.late_ticks += 1
         self.take_commands()
+        # The watchdog by the cycle's own time (not its count: a stall of this process must not
+        # trip it): commands that came during the stall were taken just now; a controller that
+        # went silent before it stops the axis when the drive would have.
+        due_ns = self.t_start_ns + self.seq * self.period_ns
+        if (self.last_cmd_ns and not self.fault_reason
+                and due_ns - self.last_cmd_ns > self.watchdog_ticks * self.period_ns):
+            self.fault_reason = (f'no velocity command for '
+                                 f'{(due_ns - self.last_cmd_ns) * 1e-6:.1f} ms (watchdog '
+                                 f'{self.watchdog_ticks * self.period_ns * 1e-6:g} ms, '
+                                 'cycles caught up after a stall of the simulator): axis stopped')
+            self.watchdog_trips += 1
+            self._resumed_ns = 0
+            self.node.get_logger().warning(f'watchdog: {self.fault_reason}')
         fault, _ = self._drive_fault(tick)
         self.seq += 1
         if fault or not tick.drive_enabled or not self.cmd_enable:
