@@ -620,7 +620,10 @@ def live_rows(load_s: float, clients_s: float) -> dict:
             min_gap = min(g for _, g, _ in truth[n_truth:])
             nodes.interrupt('sim')
             log = nodes.log('sim')
-            first = re.search(r'drive fault at cycle (\d+): (second commander[^\n]*)', log)
+            # the cycle as the feedback's seq counts it (the drive's cycle counter also counts
+            # the cycles caught up silently after a stall of the simulator)
+            first = re.search(r'drive fault at cycle \d+ \(next feedback seq (\d+)\): '
+                              r'(second commander[^\n]*)', log)
             fault_seq = next((f[0] for f in fbs if 'second commander' in f[2]), None)
             summary = json.loads(log.split('commands by source: ')[1].splitlines()[0].strip())
             foreign_executed = sum(v for k, v in summary['cycles_executed'].items()

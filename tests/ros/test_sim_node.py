@@ -146,7 +146,8 @@ def test_the_drive_executes_one_commander_and_faults_on_a_second(sim):
     _command(probe, A, 0.0, 0.05, enable=False)
     assert nodes.interrupt('sim') == 0
     log = nodes.log('sim')
-    assert re.search(r'drive fault at cycle \d+: second commander', log)
+    assert re.search(r'drive fault at cycle \d+ \(next feedback seq \d+\): second commander',
+                     log)
     summary = json.loads(log.split('commands by source: ')[1].splitlines()[0].rstrip(']').strip())
     assert not any('test_commander_b' in k for k in summary['cycles_executed'])
     assert any('test_commander_b' in k for k in summary['refused'])

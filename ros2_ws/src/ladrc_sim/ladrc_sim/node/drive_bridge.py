@@ -288,7 +288,8 @@ class DriveBridge:
             if not faulted:  # the first foreign command: hold zero from now on
                 self.cmd_velocity, self.cmd_enable = 0.0, False
                 self.node.get_logger().error(
-                    f'drive fault at cycle {self.seq}: {self.lock.fault_reason}')
+                    f'drive fault at cycle {self.seq} (next feedback seq {self.enc_seq}): '
+                    f'{self.lock.fault_reason}')
             if (self.lockstep and self.lock.owner == (msg.commander, msg.session)
                     and msg.sample_seq == self.seq and self._answer is None):
                 self._answer = (0.0, False)  # the step goes on, the drive faulted: at rest
