@@ -585,11 +585,7 @@ class FollowController:
         self._last_gap, self._last_enc = gap, enc
         why = self._guard.far_drop(enc, gap)
         if why:  # held as an edge from this tick (edge.py): nothing further down
-            self.counts['edge_hold'] += 1
-            self._partner.void_lock(why)
-            if self._u < 0.0:
-                self._u = 0.0
-            self._override = -math.inf
+            self._edge_hold(why, gap)
         return LAW[self._state](self, gap, enc, self._law_target(gap), prev_gap, prev_enc)
 
     def _edge_verdict(self, gap: float, enc: float) -> float | None:
@@ -631,21 +627,30 @@ class FollowController:
                 return self._move_up(guard.verify_velocity_mm_s, enc)
             self._override = guard.verify_velocity_mm_s
         if verdict == EDGE:
-            # at an edge: held (only commands away from the sheet) until the guard finds the
-            # nozzle over the sheet again; not a latched FAULT (edge.py)
-            self.counts['edge_hold'] += 1
-            self._partner.void_lock(guard.reason)
-            if self._u < 0.0:
-                self._u = 0.0
-            if not self._followed:
-                self._approach_ticks += 1  # held time counts toward the not-followed alarm
-                if self._approach_ticks >= self._timeout_ticks:
-                    return self._fault(f'{self._timeout_reason(gap - self._target_eff)}; '
-                                       f'{guard.reason}')
-            if st == PREINTERPOLATE:
-                return self._hold_up_only()
-            self._override = -math.inf
+            held = self._edge_hold(guard.reason, gap)
+            if held is not None:
+                return held
         self._limiter.down_cap_mm_s = guard.down_cap_mm_s
+        return None
+
+    def _edge_hold(self, reason: str, gap: float) -> float | None:
+        """Hold at an edge until the guard finds the nozzle over the sheet again (edge.py).
+
+        Only commands away from the sheet; not a latched FAULT. Return the tick's command when
+        the hold ends the tick (the approach), else None (the law runs on, overridden).
+        """
+        self.counts['edge_hold'] += 1
+        self._partner.void_lock(reason)
+        if self._u < 0.0:
+            self._u = 0.0
+        if self._state == PREINTERPOLATE:
+            # the approach is not stepped while held: its time counts toward the not-followed
+            # alarm here (the PID counts its own, held or not)
+            self._approach_ticks += 1
+            if self._approach_ticks >= self._timeout_ticks:
+                return self._fault(f'{self._timeout_reason(gap - self._target_eff)}; {reason}')
+            return self._hold_up_only()
+        self._override = -math.inf
         return None
 
     def _cnc_verdict(self, gap: float, enc: float) -> float | None:
