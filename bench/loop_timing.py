@@ -12,8 +12,9 @@
    the start as the CNC would). "with": the recorder records every contract topic (a third
    2 kHz process); "without": it records only ``follow/status`` and ``axis/capacitive_height``,
    which the figures need.
-3. Lock step: the same scenario in lock step, unpaced, with the full recorder: its speed as a
-   multiple of real time (simulated seconds over wall seconds of the sim's loop).
+3. Lock step: the same scenario in lock step, unpaced, with the full recorder and without any
+   (the loop alone: sim and controller): its speed as a multiple of real time (simulated
+   seconds over wall seconds of the sim's loop).
 
 Figures per run, from the bag: rate (ticks per second of the controller's own clock), tick
 period p50/p99/p99.9/max and periods over 2 ms (the status' own period field); sensor samples
@@ -108,7 +109,8 @@ def run_node_set(folder: Path, duration_s: float, loop: str, recorder: str,
     scenario = folder / 'loop_timing.yaml'
     scenario.write_text(SCENARIO.format(duration=WARMUP_S + duration_s))
     bag = folder / f'bag_{loop}_{recorder}'
-    specs = node_specs(str(scenario), bag=str(bag), loop=loop, lockstep=lockstep, paced=False)
+    specs = node_specs(str(scenario), bag=None if recorder == 'none' else str(bag), loop=loop,
+                       lockstep=lockstep, paced=False)
     for spec in specs:
         if spec.name == 'ladrc_recorder' and recorder == 'without':
             spec.parameters['topics'] = ("['follow/status', 'axis/capacitive_height', "
@@ -207,9 +209,9 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
     }
 
 
-def lockstep_speed(folder: Path, duration_s: float) -> dict[str, float]:
-    """Lock step with the full recorder: simulated seconds over wall seconds of the sim."""
-    bag, logs = run_node_set(folder, duration_s, 'lockstep', 'with', lockstep=True)
+def lockstep_speed(folder: Path, duration_s: float, recorder: str = 'with') -> dict[str, float]:
+    """Lock step (``recorder`` 'with' or 'none'): simulated over wall seconds of the sim."""
+    bag, logs = run_node_set(folder, duration_s, 'lockstep', recorder, lockstep=True)
     lines = [line for line in logs['ladrc_sim'].splitlines() if '[ladrc_sim]: scenario' in line]
 
     def stamp(line: str) -> float:
@@ -217,9 +219,10 @@ def lockstep_speed(folder: Path, duration_s: float) -> dict[str, float]:
 
     wall = stamp(lines[-1]) - stamp(lines[0])
     sim_s = WARMUP_S + duration_s
-    summary = json.loads((bag / 'recording.json').read_text())
-    return {'sim_s': sim_s, 'wall_s': wall, 'realtime_x': sim_s / wall,
-            'messages_lost': summary['messages_lost']}
+    out = {'sim_s': sim_s, 'wall_s': wall, 'realtime_x': sim_s / wall}
+    if recorder != 'none':
+        out['messages_lost'] = json.loads((bag / 'recording.json').read_text())['messages_lost']
+    return out
 
 
 def main() -> int:
@@ -248,18 +251,23 @@ def main() -> int:
                 runs[f'{loop}/{rec}_recorder'] = figures(bag, logs)
                 print(f'{loop}, {rec} recorder: {runs[f"{loop}/{rec}_recorder"]}',
                       file=sys.stderr)
-        lock = None
+        lock = alone = None
         if args.lockstep > 0:
             folder = Path(tmp) / 'lockstep'
             folder.mkdir()
             lock = lockstep_speed(folder, args.lockstep)
             print(f'lock step: {lock}', file=sys.stderr)
+            folder = Path(tmp) / 'lockstep_alone'
+            folder.mkdir()
+            alone = lockstep_speed(folder, args.lockstep, 'none')
+            print(f'lock step, no recorder: {alone}', file=sys.stderr)
     main_run = runs[next(iter(runs))]
     out = {'duration_s': args.duration, **main_run,
            'bare_timer_rate_hz': floor['rate_hz'],
            'bare_timer_period_p99_us': floor['period_p99_us'],
            'lockstep_realtime_x': lock['realtime_x'] if lock else None,
-           'runs': runs, 'lockstep': lock}
+           'lockstep_alone_realtime_x': alone['realtime_x'] if alone else None,
+           'runs': runs, 'lockstep': lock, 'lockstep_alone': alone}
     print(json.dumps(out))
     return 0
 
