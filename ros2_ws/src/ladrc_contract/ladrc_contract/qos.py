@@ -30,7 +30,11 @@ tests/test_contract_once.py fails when a QoS profile is made anywhere else.
   lost; 1000 lost 18 samples of a 4 s run next to two other node sets); the loop's inputs
   KEEP_LAST 1 (the sim publishes step k+1 only after the answer to k); the drive's command
   input KEEP_LAST 100, so that a foreign command (refused by the commander lock) cannot
-  supersede the commander's answer.
+  supersede the commander's answer. A lock-step writer's node does not go down before its
+  readers have acknowledged every message (:func:`wait_acknowledged`): a reliable writer
+  repairs only while it exists, and a sim that exited at the end of its scenario while the
+  recorder lagged (a loaded machine) took the run's last 13 capacitive samples with it
+  (a fresh-clone ``make test``, 2026-12-04).
 
 A driver for the real axis uses the same profiles.
 """
@@ -87,6 +91,26 @@ TOPIC_QOS: dict[str, Qos] = {
 }
 """The publishers' profile of each recorded topic (what a bag stores as offered)."""
 assert {GAP_TOPIC, FEEDBACK_TOPIC, COMMAND_TOPIC, STATUS_TOPIC, TRUTH_TOPIC} <= set(TOPIC_QOS)
+
+
+def wait_acknowledged(publishers: Any, timeout_s: float) -> list[str]:
+    """Wait until every reader acknowledged all of the ``publishers``' messages; return the late.
+
+    Reliable publishers only wait (rclpy ``Publisher.wait_for_all_acked``; best effort returns
+    at once); at most ``timeout_s`` (wall clock) for all of them together. Returns the topics
+    not acknowledged in time (a reader gone or stalled), for the caller's one log line.
+    """
+    import time
+
+    from rclpy.duration import Duration
+
+    end = time.monotonic() + timeout_s
+    late = []
+    for pub in publishers:
+        left_ns = max(0, int((end - time.monotonic()) * 1e9))
+        if not pub.wait_for_all_acked(Duration(nanoseconds=left_ns)):
+            late.append(pub.topic_name)
+    return late
 
 
 def to_rclpy(q: Qos) -> Any:

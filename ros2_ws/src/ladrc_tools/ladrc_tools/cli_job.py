@@ -26,6 +26,9 @@ FEATURES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     'edge_ahead': ({}, {'cnc.edge_ahead_hold_mm': 0.0}),
     'leapfrog': ({'leapfrog': False}, {}),
     'feed_override': ({'honour_override': False}, {}),
+    # the void lock's two judgements at their widest (a jump of 20 mm, a fall of 10 m/s): the
+    # edge guard's verification and the far drop stay
+    'void_lock': ({}, {'follow.jump_mm': 20.0, 'edge.fall_mm_s': 10000.0}),
 }
 
 

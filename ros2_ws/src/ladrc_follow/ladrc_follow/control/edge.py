@@ -15,7 +15,9 @@ shrinks by the axis travel, at an edge by more (gain > 1). So:
   of the apparent surface. A gain above ``gain_max`` is an edge: held (below).
 * **A fast fall is not followed down.** The apparent surface ``encoder − gap`` (low-passed
   over ``fall_tau_s``) falling faster than ``fall_mm_s``, faster than a flat sheet falls, is
-  held (no command toward the sheet) while it lasts. Closing in afterwards is capped at
+  held (no command toward the sheet) by the void lock (void_lock.py: locked after
+  ``void_lock_ticks`` ticks beyond, unlocked after ``void_unlock_ticks`` within; the same lock
+  holds a one-sample jump for the input gate). Closing in afterwards is capped at
   ``probe_mm_s`` until :class:`TravelGain` has seen ``gain_travel_mm`` of travel and found a
   sheet (gain ≤ ``gain_max``); a gain above it faults as above.
 * **A far drop** of the apparent surface below its slow reference (``drop_mm``, the seed's
@@ -53,6 +55,8 @@ from math import isnan
 from ladrc_contract.schema import Section, param
 import numpy as np
 
+from .void_lock import VoidLock
+
 _EDGE = 'notes §5.3 item 3 (边缘, 反馈系数)'
 
 OK, FALLING, EDGE, VERIFY, HOLD = 0, 1, 2, 3, 4
@@ -77,6 +81,15 @@ class EdgeParams(Section):
                              le=10000.0, seed=_EDGE)
     fall_tau_s: float = param(0.004, 's', 'time constant of the apparent-surface speed',
                               gt=0.0, le=1.0)
+    void_lock_ticks: int = param(1, 'ticks', 'void lock: ticks in a row with the apparent '
+                                 'surface falling faster than fall_mm_s before it locks '
+                                 '(plasmac voidlock_on_cycles; the fall_tau_s low-pass already '
+                                 'smooths the reading)', ge=1, le=100,
+                                 seed='plasmac voidlock_on_cycles')
+    void_unlock_ticks: int = param(1, 'ticks', 'void lock: ticks in a row at or below '
+                                   'fall_mm_s before it unlocks (plasmac voidlock_off_cycles); '
+                                   'closing in after it is probed (probe_mm_s)', ge=1, le=1000,
+                                   seed='plasmac voidlock_off_cycles')
     gain_max: float = param(1.35, '1', 'feedback gain (reading travel per axis travel, 1 over '
                             'a whole sheet) above which the nozzle is leaving the sheet',
                             gt=1.0, le=5.0, seed=_EDGE)
@@ -266,10 +279,14 @@ class EdgeGuard:
     ``down_cap_mm_s`` is the speed limit toward the sheet it asks for (inf when none).
     """
 
-    def __init__(self, p: EdgeParams, h_s: float) -> None:
+    def __init__(self, p: EdgeParams, h_s: float, void: VoidLock | None = None) -> None:
         self.params = p
         self._h = h_s
-        self._c = h_s / (p.fall_tau_s + h_s)  # backward-Euler low-pass, as pid.py
+        if void is None:  # a guard alone (no input gate): a void lock of its own for the fall
+            void = VoidLock({'jump': 0, 'void_lock': 0})
+            void.configure(math.inf, 0.0, p.fall_mm_s, p.fall_tau_s, p.void_lock_ticks,
+                           p.void_unlock_ticks, h_s)
+        self.void = void  # the controller's void lock: judges the fall (its memory is its own)
         self._c_slow = h_s / (p.verify_settle_s + h_s)
         self._c_noise = h_s / (p.noise_tau_s + h_s)
         self._probe_max = max(1, int(round(p.probe_s / h_s)))
@@ -285,7 +302,7 @@ class EdgeGuard:
         self._c_ref = h_s / (p.ref_tau_s + h_s)  # backward-Euler low-pass, as pid.py
         self.surface_ref_mm = 0.0  # the far drop's slow reference of the apparent surface
         warm_up()
-        self.reset()
+        self._forget()
 
     def reset(self, start_above_mm: float = math.nan) -> None:
         """Forget the history and any pending probe (a new approach).
@@ -295,9 +312,13 @@ class EdgeGuard:
         gain first. (A follow that starts at or below its target closes in on nothing; its
         level is verified once followed, as every level reached without a judged gain.)
         """
+        self.void.clear_slope()
+        self._forget(start_above_mm)
+
+    def _forget(self, start_above_mm: float = math.nan) -> None:
+        """:meth:`reset` but the void lock (a new guard for a parameter set keeps it)."""
         self._z = self._r = math.nan
-        self.surface_mm_s = 0.0
-        self._slow_mm_s = 0.0  # the same, low-passed over verify_settle_s
+        self._slow_mm_s = 0.0  # the apparent surface's speed low-passed over verify_settle_s
         self.probing = False
         self.verified_mm = math.nan  # apparent surface last found over a sheet
         self._probe_ticks = 0
@@ -332,9 +353,9 @@ class EdgeGuard:
         The levels verified, the doubts and strikes stay; a verification in progress starts
         again under the new parameters (its window is theirs).
         """
-        for name in ('_z', '_r', '_t', '_r1', '_r2', '_d2_ms', '_d2_n', 'surface_mm_s',
-                     '_slow_mm_s', 'probing', 'verified_mm',
-                     '_probe_ticks', '_strikes', '_doubt_mm', '_doubt_t', '_doubt_n', 'doubts',
+        for name in ('_z', '_r', '_t', '_r1', '_r2', '_d2_ms', '_d2_n', '_slow_mm_s', 'probing',
+                     'verified_mm', '_probe_ticks', '_strikes', '_doubt_mm', '_doubt_t',
+                     '_doubt_n', 'doubts',
                      'aborted', '_at_start', 'gain', 'gain_se', 'fit_rms_mm', 'reason',
                      'surface_ref_mm', 'held', '_held_approach', '_held_t', '_held_n',
                      'holds'):
@@ -429,7 +450,7 @@ class EdgeGuard:
             return self._verify_tick(enc_mm, gap_mm, fresh) if self.verifying else OK
         # the apparent surface (encoder − gap) moves by dz − dr
         ds = (dz - dr) / self._h
-        v = self.surface_mm_s = self.surface_mm_s + self._c * (ds - self.surface_mm_s)
+        falling = self.void.slope(ds)
         self._slow_mm_s += self._c_slow * (ds - self._slow_mm_s)
         if self.held:
             return self._held_tick(enc_mm, gap_mm, fresh, target_mm)
@@ -438,7 +459,7 @@ class EdgeGuard:
             # fall at an edge (by (k - 1) x the lift), and a real sheet step leaves the fit a
             # residual no cubic explains (it cannot tell: it holds)
             return self._verify_tick(enc_mm, gap_mm, fresh)
-        if v < -p.fall_mm_s:
+        if falling:
             self.probing = True
             self._probe_ticks = 0
             self.travel.reset()
@@ -557,7 +578,8 @@ class EdgeGuard:
             # reading too); a sheet that keeps rising is a rising surface, which is safe
             self.verifying = False
             self.aborted += 1
-            self.surface_mm_s = self._slow_mm_s = 0.0
+            self.void.clear_slope()
+            self._slow_mm_s = 0.0
             return OK
         if self._ticks < self._n_pre + self._n_move + self._n_settle and not skipped:
             return VERIFY
@@ -566,7 +588,8 @@ class EdgeGuard:
             math.nan, math.nan, math.nan)
         self.gain, self.gain_se, self.fit_rms_mm = k, se, rms
         self.verifying = False
-        self.surface_mm_s = self._slow_mm_s = 0.0  # the surface speed restarts after the move
+        self.void.clear_slope()  # the surface speed restarts after the move
+        self._slow_mm_s = 0.0
         level = enc_mm - gap_mm
         lifted = bool(z) and max(z) - self._z_start >= 0.5 * lift_mm
         # a sheet: the gain one standard error above the fit still under the limit, from a fit
@@ -643,7 +666,8 @@ class EdgeGuard:
         self._strikes = self._doubt_n = 0
         self._doubt_mm = math.inf
         self._at_start = False
-        self.surface_mm_s = self._slow_mm_s = 0.0
+        self.void.clear_slope()
+        self._slow_mm_s = 0.0
         self.surface_ref_mm = level_mm  # the far drop's reference restarts here
         self.probing = True
         self._probe_ticks = 0

@@ -41,7 +41,7 @@ from ladrc_contract.codes import EventKind
 from ladrc_contract.events import EventFields
 from ladrc_contract.events import encode as encode_event
 from ladrc_contract.loop_io import LoopNode
-from ladrc_contract.qos import to_rclpy
+from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.schema import Entry, entries, field_problems
 from ladrc_contract.services import FOLLOW_SERVICES, command_args, service_class
@@ -588,6 +588,14 @@ def main(argv: list[str] | None = None) -> int:
                     node.publish_zero(stop_reason[0], log=i == 0, release=i == 2)
                 except Exception:  # noqa: BLE001 - the context may already be gone
                     break
+            if node.lockstep:
+                # the recorder gets the last status and the zero commands before the reliable
+                # writers go (ladrc_contract.qos.wait_acknowledged); at most 2 s
+                try:
+                    wait_acknowledged((node.pub_cmd, node.pub_status),
+                                      min(2.0, node.node_params.lockstep_timeout_s))
+                except Exception:  # noqa: BLE001 - the context may already be gone
+                    pass
         return 0
     finally:
         if node is not None:

@@ -45,7 +45,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
 from ladrc_contract.loop_io import LoopNode
-from ladrc_contract.qos import to_rclpy
+from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.service_thread import ServiceThread
 from ladrc_contract.services import FOLLOW_SERVICES, fill_request, service_class
@@ -373,6 +373,15 @@ def main(argv: list[str] | None = None) -> int:
         except LockstepAbort as exc:
             print(f'sim_node: {exc}', file=sys.stderr)
             return 3
+        if node.lockstep:
+            # reliable writers repair only while they exist: the readers (the recorder, which
+            # may lag on a loaded machine) get every message before this node goes down
+            late = wait_acknowledged((node.pub_gap, node.pub_fb, node.pub_step, node.pub_truth),
+                                     node.lockstep_timeout_s)
+            if late:
+                node.get_logger().warning(
+                    f'lock step: messages on {", ".join(late)} not acknowledged by every '
+                    f'reader within {node.lockstep_timeout_s:g} s (a reader gone?)')
         node.get_logger().info(f'commands by source: {json.dumps(node.commander_summary())}')
         if bridge.running and not node.get_parameter('exit_at_end').value:
             while bridge.running:

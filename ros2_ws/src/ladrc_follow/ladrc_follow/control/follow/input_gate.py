@@ -5,7 +5,8 @@ Trust no sensor's own claims beyond what the encoder confirms (docs/follow-state
 and validity, then the reading itself against the encoder: a tick without a new sample runs on
 the encoder-predicted gap (notes §4, the Kalman predict step), a run of bit-identical samples
 while the encoder moves is a frozen sensor, and a reading that widens faster than a sheet can
-fall (``follow.jump_mm``) is held until it persists for ``follow.jump_confirm_s``.
+fall (``follow.jump_mm``) is held by the void lock (control/void_lock.py) until it persists for
+``follow.jump_confirm_s``.
 
 The gate never changes the follow state: it returns a verdict (:data:`USABLE`, :data:`HOLD`,
 :data:`FAULT`, :data:`COLLISION`, :data:`DRIVE`) and, for the last three, ``reason``; the state
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+from ..void_lock import VoidLock
 from .states import GAP_STATUS_COLLISION, GAP_STATUS_FAULT, GAP_STATUS_OUT_OF_RANGE
 
 USABLE, HOLD, FAULT, COLLISION, DRIVE = 0, 1, 2, 3, 4
@@ -27,12 +29,14 @@ class InputGate:
     """Screens each tick's inputs (``screen``) and those of a follow that starts (``lock``).
 
     Its counters of rejected samples go into the controller's ``counts``; its memory of the
-    samples (the last accepted reading and the encoder then, the frozen-value run, a jump being
-    held, the low-passed share of invalid samples) survives parameter changes.
+    samples (the last accepted reading and the encoder then, the frozen-value run, the
+    low-passed share of invalid samples) survives parameter changes, as the controller's void
+    lock (``void``), which judges a jump.
     """
 
-    def __init__(self, counts: dict[str, int]) -> None:
+    def __init__(self, counts: dict[str, int], void: VoidLock) -> None:
         self.counts = counts
+        self.void = void
         self.reason = ''
         self.gap_mm = math.nan  # the gap the law may use (USABLE): the reading or its prediction
         self.fresh = True       # this tick's gap is a new sample (not the encoder prediction)
@@ -41,7 +45,6 @@ class InputGate:
         self._accepted_enc_mm = math.nan
         self._same_count = 0
         self._same_enc0_mm = math.nan
-        self._jump_t0_s = math.nan  # time of the first jumped reading being held
         self._invalid_share = 0.0   # low-passed share of invalid samples
         self._invalid_ticks = 0
         self._miss_ticks = 0
@@ -57,15 +60,8 @@ class InputGate:
         self._share_max = follow.invalid_rate_max
         self._invalid_max = max(1, int(round(follow.invalid_timeout_s / h_s)))
         self._miss_max = max(1, int(round(follow.miss_panel_s / h_s)))
-        self._jump_mm = follow.jump_mm
-        self._jump_confirm_s = follow.jump_confirm_s
         self._frozen_count = follow.frozen_ticks
         self._frozen_mm = follow.frozen_travel_mm
-
-    @property
-    def jump_held(self) -> bool:
-        """A widened reading is being held (``follow.jump_mm``)."""
-        return not math.isnan(self._jump_t0_s)
 
     def collision_evidence(self, gap_mm: float, valid: bool, status: int) -> bool:
         """Return whether the sensor reports contact or a reading is at or below the limit."""
@@ -161,8 +157,8 @@ class InputGate:
             # encoder increment predicts the gap (notes §4, the Kalman predict step)
             self.counts['predicted'] += 1
             self.fresh = False  # the Kalman filters only predict on this tick
-            if not math.isnan(self._jump_t0_s):
-                return HOLD  # still holding on a jumped reading
+            if self.void.jump_held:
+                return self._verdict(HOLD, self.void.reason)  # still holding a jumped reading
             self.gap_mm = self._accepted_gap_mm + (enc - self._accepted_enc_mm)
             return USABLE
         self._used_stamp_s = gstamp
@@ -179,15 +175,10 @@ class InputGate:
                                             f'encoder moved {moved:+.3f} mm')
         else:
             self._same_count, self._same_enc0_mm = 0, enc
-        if gap - (self._accepted_gap_mm + (enc - self._accepted_enc_mm)) > self._jump_mm:
-            # the reading widened by more than a sheet can fall away in one sample: do not
-            # follow it down; a level that persists for jump_confirm_s is taken as real
-            self.counts['jump'] += 1
-            if math.isnan(self._jump_t0_s):
-                self._jump_t0_s = t
-            if t - self._jump_t0_s < self._jump_confirm_s:
-                return HOLD
-        self._jump_t0_s = math.nan
+        if self.void.sample(t, gap - (self._accepted_gap_mm + (enc - self._accepted_enc_mm))):
+            # the reading widened by more than a sheet can fall away in one sample: not
+            # followed down; a level that persists for jump_confirm_s is taken as real
+            return self._verdict(HOLD, self.void.reason)
         self._accepted_gap_mm, self._accepted_enc_mm = gap, enc
         self.gap_mm = gap
         return USABLE
@@ -222,4 +213,7 @@ class InputGate:
                     f'status {status}' if status else 'not finite')
                 return self._verdict(FAULT, f'gap reading invalid ({what}) for '
                                             f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
-        return HOLD
+            return self._verdict(HOLD, 'gap reading invalid: held (a FAULT after '
+                                       f'{self._invalid_max * self._h * 1e3:.3g} ms)')
+        return self._verdict(HOLD, 'no sheet under the nozzle (reading out of range): held (a '
+                                   f'miss-panel after {self._miss_max * self._h * 1e3:.3g} ms)')

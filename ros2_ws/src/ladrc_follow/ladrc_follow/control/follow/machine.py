@@ -42,6 +42,7 @@ from ..ladrc import LADRC
 from ..params import ControllerParams, check
 from ..pid import FollowPID
 from ..target_wave import TargetWave
+from ..void_lock import VoidLock
 from . import input_gate as gate
 from .cnc import CncPartner
 from .commands import TABLE, CommandView, projected_state
@@ -114,9 +115,10 @@ class FollowController:
                  follow: FollowParams | None = None, *, mode: str | None = None) -> None:
         self.counts = {'predicted': 0, 'frozen': 0, 'jump': 0, 'invalid': 0,
                        'out_of_range': 0, 'nonfinite': 0, 'fall_hold': 0, 'sink_hold': 0,
-                       'verify': 0, 'edge_hold': 0}
-        """Ticks run on the encoder-predicted gap, samples rejected per cause."""
-        self._input_gate = InputGate(self.counts)
+                       'verify': 0, 'edge_hold': 0, 'void_lock': 0}
+        """Ticks run on the encoder-predicted gap, samples rejected per cause, void locks."""
+        self._void = VoidLock(self.counts)  # one lock for the gate's jump and the guard's fall
+        self._input_gate = InputGate(self.counts, self._void)
         self._partner = CncPartner()  # the CNC interface (.cnc)
         self._limiter = OutputLimiter()
         self._pending: list[tuple[str, dict]] = []
@@ -170,6 +172,9 @@ class FollowController:
         self._h = h
         self._limiter.configure(p.limits, h)
         self._input_gate.configure(f, h)
+        e = p.edge
+        self._void.configure(f.jump_mm, f.jump_confirm_s, e.fall_mm_s, e.fall_tau_s,
+                             e.void_lock_ticks, e.void_unlock_ticks, h)
         self._partner.configure(p, h)
         self._pid_du = p.pid.a_max_mm_s2 * h
         self._use_ladrc = f.controller == 'ladrc'
@@ -191,7 +196,7 @@ class FollowController:
         self._timeout_ticks = _ticks(f.followed_timeout_s, h)
         self._lock_max = _ticks(f.locking_timeout_s, h)
         old_guard = getattr(self, '_guard', None)
-        self._guard = EdgeGuard(p.edge, h)
+        self._guard = EdgeGuard(p.edge, h, self._void)
         if old_guard is not None:
             self._guard.carry_over(old_guard)  # what this follow verified stays verified
         ext = p.eso.disturbance_limit
@@ -551,8 +556,8 @@ class FollowController:
         ig = self._input_gate
         verdict = ig.screen(tick)
         if verdict != gate.USABLE:
-            if verdict == gate.HOLD:
-                self._partner.void_lock(ig.reason or 'reading jumped wider: held')
+            if verdict == gate.HOLD:  # a jump (the void lock) or a reading not usable yet
+                self._partner.void_lock(ig.reason)
                 return self._hold_up_only()
             if verdict == gate.DRIVE:
                 return self._drive_fault(tick[7])
@@ -600,7 +605,7 @@ class FollowController:
         if verdict == FALLING:
             # faster than a sheet falls: not followed down; closing in afterwards is probed
             self.counts['fall_hold'] += 1
-            self._partner.void_lock('the apparent surface falls faster than a sheet: held')
+            self._partner.void_lock(self._void.reason)
             if not self._followed:
                 self._approach_ticks += 1  # held time counts toward the not-followed alarm
                 if self._approach_ticks >= self._timeout_ticks:
