@@ -315,6 +315,11 @@ class EdgeGuard:
         self.void.clear_slope()
         self._forget(start_above_mm)
 
+    def _restart_surface_speed(self) -> None:
+        """Restart the apparent surface's speed: the void lock's slope and its slow low-pass."""
+        self.void.clear_slope()
+        self._slow_mm_s = 0.0
+
     def _forget(self, start_above_mm: float = math.nan) -> None:
         """:meth:`reset` but the void lock (a new guard for a parameter set keeps it)."""
         self._z = self._r = math.nan
@@ -578,8 +583,7 @@ class EdgeGuard:
             # reading too); a sheet that keeps rising is a rising surface, which is safe
             self.verifying = False
             self.aborted += 1
-            self.void.clear_slope()
-            self._slow_mm_s = 0.0
+            self._restart_surface_speed()
             return OK
         if self._ticks < self._n_pre + self._n_move + self._n_settle and not skipped:
             return VERIFY
@@ -588,8 +592,7 @@ class EdgeGuard:
             math.nan, math.nan, math.nan)
         self.gain, self.gain_se, self.fit_rms_mm = k, se, rms
         self.verifying = False
-        self.void.clear_slope()  # the surface speed restarts after the move
-        self._slow_mm_s = 0.0
+        self._restart_surface_speed()  # after the move
         level = enc_mm - gap_mm
         lifted = bool(z) and max(z) - self._z_start >= 0.5 * lift_mm
         # a sheet: the gain one standard error above the fit still under the limit, from a fit
@@ -666,8 +669,7 @@ class EdgeGuard:
         self._strikes = self._doubt_n = 0
         self._doubt_mm = math.inf
         self._at_start = False
-        self.void.clear_slope()
-        self._slow_mm_s = 0.0
+        self._restart_surface_speed()
         self.surface_ref_mm = level_mm  # the far drop's reference restarts here
         self.probing = True
         self._probe_ticks = 0
