@@ -396,3 +396,38 @@ def test_the_sim_scenario_is_a_plain_drive():
     assert sc.initial_gap_mm == 6.0
     assert sc.timeline == ()          # no follow commands: the sim node waits for no one
     assert sc.sheet.profiles == ()    # flat, resting sheet
+
+
+def test_the_speed_bound_ignores_one_late_sample_and_stops_a_runaway(monkeypatch):
+    """The prober's speed bound (conform_node.SpeedGuard), fed 2 kHz encoder samples.
+
+    A true 6 mm/s under an 8 mm/s bound, the driver stalled for 8 ms between taking sample 100
+    and sending it (as a fresh-clone make test had it): sample 100 arrives 8 ms late with its
+    old position, the cycles of the stall send nothing (the driver catches up silently), and the
+    one window that starts on sample 100 reads 10.8 mm/s. The run goes on; a judge of single
+    windows (the kit before 2026-12-04, persistence 0) aborts there. An axis at 12 mm/s is
+    stopped within 10 + 2 ms + a sample.
+    """
+    from ladrc_tools.node import conform_node
+    from ladrc_tools.node.conform_node import SPEED_PERSIST_NS, SPEED_WINDOW_NS, SpeedGuard
+
+    def feed(speed_mm_s, stall_at=None, n=400):
+        guard = SpeedGuard(8.0)
+        for k in range(n):
+            t_ns = k * 500_000
+            if stall_at is not None and stall_at < k <= stall_at + 16:
+                continue  # the stall's cycles: nothing sent
+            recv = t_ns + (8_000_000 if k == stall_at else 0)
+            why = guard.feed(recv, speed_mm_s * t_ns * 1e-9)
+            if why:
+                return k, why
+        return None, ''
+
+    assert feed(6.0, stall_at=100) == (None, '')
+    assert feed(6.0) == (None, '')
+    k, why = feed(12.0)
+    assert why.startswith('speed beyond the bound: 12.00 mm/s') and k is not None
+    assert k * 500_000 <= SPEED_WINDOW_NS + SPEED_PERSIST_NS + 500_000
+    monkeypatch.setattr(conform_node, 'SPEED_PERSIST_NS', 0)
+    k, why = feed(6.0, stall_at=100)
+    assert why.startswith('speed beyond the bound: 10.8'), why

@@ -73,6 +73,7 @@ NODE_NAME = 'ladrc_conform'
 PERIOD_NS = int(round(H_S * 1e9))
 READER_DEPTH = 10000  # 5 s of a 2 kHz topic: the loop polls far more often than that
 SPEED_WINDOW_NS = 10_000_000  # the speed bound is judged over >= 10 ms of encoder travel
+SPEED_PERSIST_NS = 2_000_000  # ... in every window for 2 ms (SpeedGuard)
 MAX_PLAUSIBLE_GAP_MM = 50.0  # beyond any capacitive height sensor: a reading not in mm
 # aborts that a stall of the host causes as well as a driver: the motion tests are repeated
 RETRYABLE = ('stale data', 'drive fault during the test')
@@ -83,6 +84,49 @@ RESET_WAIT_S = 1.0  # the reset service's answer
 AFTER_RESET_S = 0.2
 SECOND_COMMANDER_NAME = '/ladrc_conform_second_commander'
 BAG_TOPICS = (GAP_TOPIC, FEEDBACK_TOPIC, COMMAND_TOPIC, '/diagnostics', 'run/scenario')
+
+
+class SpeedGuard:
+    """The prober's speed bound: the encoder's travel over >= 10 ms of reception time.
+
+    The speed must stay beyond the bound for ``SPEED_PERSIST_NS`` of windows before the run
+    aborts: one sample the driver sent late (its process stalled between taking the position
+    and sending it: 8 ms on a loaded 2-core machine, 2026-12-04) starts a window with an old
+    position, and that one window reads up to (10 ms + stall) / 10 ms x the true speed (10.94
+    mm/s for 6 mm/s); the next window starts on the caught-up sample. A runaway axis stays
+    beyond the bound and is stopped 2 ms later than on its first window.
+    """
+
+    def __init__(self, max_speed_mm_s: float) -> None:
+        self.max_speed_mm_s = max_speed_mm_s
+        self._window: deque[tuple[int, float]] = deque()
+        self._over_ns = -1  # reception time of the first window beyond the bound, -1: none
+
+    def clear(self) -> None:
+        """Forget the samples (the motion restarts)."""
+        self._window.clear()
+        self._over_ns = -1
+
+    def feed(self, recv_ns: int, pos_mm: float) -> str:
+        """Take one encoder sample; return why the run must abort ('' = within the bound)."""
+        win = self._window
+        win.append((recv_ns, pos_mm))
+        while len(win) > 2 and recv_ns - win[1][0] >= SPEED_WINDOW_NS:
+            win.popleft()
+        t0, p0 = win[0]
+        if recv_ns - t0 < SPEED_WINDOW_NS:
+            return ''
+        speed = abs(pos_mm - p0) / ((recv_ns - t0) * 1e-9)
+        if speed <= self.max_speed_mm_s:
+            self._over_ns = -1
+            return ''
+        if self._over_ns < 0:
+            self._over_ns = recv_ns
+        if recv_ns - self._over_ns < SPEED_PERSIST_NS:
+            return ''
+        return (f'speed beyond the bound: {speed:.2f} mm/s over {(recv_ns - t0) * 1e-6:.0f} ms, '
+                f'for {(recv_ns - self._over_ns) * 1e-6:.1f} ms of windows '
+                f'(bound {self.max_speed_mm_s:g} mm/s)')
 
 
 class ConformError(Exception):
@@ -171,7 +215,7 @@ class ConformProbe:
         self._gap_cursor = 0
         self._fb_cursor = 0
         self._pos0 = math.nan
-        self._speed_window: deque[tuple[int, float]] = deque()
+        self._speed = SpeedGuard(plan.max_speed_mm_s)
         self._fault_expected = False
         self._alive: Callable[[], bool] = lambda: True
         self._ticks = 0
@@ -412,21 +456,15 @@ class ConformProbe:
                 return f'gap {gap:.3f} mm below the minimum {p.min_gap_mm:g} mm'
         self._gap_cursor = len(g['recv'])
         f = self.f
-        win = self._speed_window
+        speed = self._speed
         for i in range(self._fb_cursor, len(f['recv'])):
             pos, recv = f['pos'][i], f['recv'][i]
             if not math.isfinite(pos) or abs(pos - self._pos0) > p.max_travel_mm:
                 return (f'travel beyond the bound: encoder {pos - self._pos0:+.3f} mm from the '
                         f'start (bound ±{p.max_travel_mm:g} mm)')
-            win.append((recv, pos))
-            while len(win) > 2 and recv - win[1][0] >= SPEED_WINDOW_NS:
-                win.popleft()
-            t0, p0 = win[0]
-            if recv - t0 >= SPEED_WINDOW_NS:
-                speed = abs(pos - p0) / ((recv - t0) * 1e-9)
-                if speed > p.max_speed_mm_s:
-                    return (f'speed beyond the bound: {speed:.2f} mm/s over '
-                            f'{(recv - t0) * 1e-6:.0f} ms (bound {p.max_speed_mm_s:g} mm/s)')
+            why = speed.feed(recv, pos)
+            if why:
+                return why
             if f['fault'][i] and not self._fault_expected:
                 return f'drive fault during the test: {f["reason"][i] or "no reason given"}'
         self._fb_cursor = len(f['recv'])
@@ -633,7 +671,7 @@ class ConformProbe:
         self._fault_expected = True
         self._constant(f'hold (attempt {attempt})', 0.3, 0.0, False)
         self._gap_cursor, self._fb_cursor = len(self.g['recv']), len(self.f['recv'])
-        self._speed_window.clear()
+        self._speed.clear()
         why = self._precondition()
         if why:
             return why
