@@ -51,9 +51,12 @@ def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(cmd, proc.returncode, out, '')
 
 
-def lockstep_run(scenario: str, bag: Path, logs: Path) -> None:
-    """``bringup --lockstep`` (sim, follow node, recorder as processes) into ``bag``."""
-    res = run([str(BIN / 'bringup'), '--scenario', scenario, '--lockstep', '--unpaced',
+def lockstep_run(scenario: str, bag: Path, logs: Path, what: str = '--scenario') -> dict:
+    """``bringup --lockstep`` (sim, follow node, recorder as processes) into ``bag``.
+
+    ``what``: ``--job`` plays ``scenario`` as a cutting job. Return bringup's last line.
+    """
+    res = run([str(BIN / 'bringup'), what, scenario, '--lockstep', '--unpaced',
                '--bag', str(bag), '--logs', str(logs),
                '--domain-id', os.environ['ROS_DOMAIN_ID']])
     logs_text = '\n'.join(f'--- {p.name}\n{p.read_text(errors="replace")[-2000:]}'
@@ -63,6 +66,20 @@ def lockstep_run(scenario: str, bag: Path, logs: Path) -> None:
         'ladrc_follow': 0, 'ladrc_sim': 0, 'ladrc_recorder': 0}, logs_text
     summary = json.loads((bag / 'recording.json').read_text())
     assert summary['messages_lost'] == 0 and summary['messages_dropped'] == 0, summary
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def assert_equal_bags(headless: Path, live: Path, n: int) -> None:
+    """Every field of every message of ``TOPICS`` equal but ``WALL_TIME``; ``n`` ticks."""
+    diffs = diff_bags(headless, live, TOPICS, WALL_TIME, limit={'axis/velocity_command': n})
+    for d in diffs:
+        assert not d.missing and not d.differing, (d.topic, d.missing, d.differing)
+        if d.topic == 'axis/velocity_command':
+            assert d.count_a == n and d.count_b >= n, (d.count_a, d.count_b)
+            continue
+        assert d.count_a == d.count_b, (d.topic, d.count_a, d.count_b)
+    status = next(d for d in diffs if d.topic == 'follow/status')
+    assert status.compared == n  # every tick of the run
 
 
 @pytest.mark.parametrize('scenario', ['showcase', 'faults', 'thin_sheet'])
@@ -76,15 +93,7 @@ def test_live_lockstep_equals_headless(tmp_path, scenario):
     # with enable off on the way down (SIGINT), after the last tick
     with_ticks = json.loads(res.stdout.strip().splitlines()[-1])
     n = int(round(with_ticks['duration_s'] / 0.0005))
-    diffs = diff_bags(headless, live, TOPICS, WALL_TIME, limit={'axis/velocity_command': n})
-    for d in diffs:
-        assert not d.missing and not d.differing, (d.topic, d.missing, d.differing)
-        if d.topic == 'axis/velocity_command':
-            assert d.count_a == n and d.count_b >= n, (d.count_a, d.count_b)
-            continue
-        assert d.count_a == d.count_b, (d.topic, d.count_a, d.count_b)
-    status = next(d for d in diffs if d.topic == 'follow/status')
-    assert status.compared == n  # every tick of the scenario
+    assert_equal_bags(headless, live, n)
 
     if scenario == 'showcase':
         # a live bag replays through the core bit for bit (ladrc replay)
@@ -92,6 +101,71 @@ def test_live_lockstep_equals_headless(tmp_path, scenario):
         line = json.loads(rep.stdout.strip().splitlines()[-1])
         assert rep.returncode == 0 and line['mismatches'] == 0, rep.stdout[-2000:]
         assert line['missing_ticks'] == 0 and line['ticks'] == n, line
+
+
+JOB_FIGURES = ('job_time_s', 'contacts', 'faults', 'pierces', 'holds', 'feed_hold_s',
+               'min_gap_over_target_cutting', 'min_true_gap_per_contour_mm', 'finished',
+               'aborted')
+
+
+SMALL_JOB = """name: lockstep_small
+description: A 60 x 40 mm part with a round and a square hole on a wavy 100 x 70 mm sheet.
+dxf: small.dxf
+sheet:
+  width_mm: 100
+  height_mm: 70
+  surface: {tilt_x: 0.0005, wave_amp_mm: 0.2, wave_length_mm: 60}
+cut: {kerf_mm: 0.2, lead_in_mm: 2.0}
+cnc: {feed_mm_s: 120, rapid_mm_s: 500, accel_mm_s2: 2000, cut_gap_mm: 1.0,
+      pierce_heights_mm: [3.0, 2.0], pierce_dwell_s: [0.05, 0.05], thc_delay_s: 0.05,
+      lift_mm: 6.0, leapfrog: true}
+controller: {cnc.feed_override_min: 0.5}
+sensor: {noise_std_mm: 0.003, quant_mm: 0.001}
+start_xy: [5.0, 5.0]
+seed: 7
+"""
+
+
+def small_job(folder: Path) -> str:
+    """Write a 6 s job (three contours, two leapfrogs, its own controller parameters)."""
+    import ezdxf
+
+    doc = ezdxf.new('R2010')
+    doc.header['$INSUNITS'] = 4  # mm
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(20, 15), (80, 15), (80, 55), (20, 55)], close=True)
+    msp.add_circle((35, 35), 6)
+    msp.add_lwpolyline([(55, 28), (67, 28), (67, 42), (55, 42)], close=True)
+    doc.saveas(str(folder / 'small.dxf'))
+    (folder / 'small.yaml').write_text(SMALL_JOB)
+    return str(folder / 'small.yaml')
+
+
+@pytest.mark.parametrize('job', ['tipping_pair', 'small'])
+def test_live_lockstep_job_equals_headless(tmp_path, job):
+    """A cutting job live in lock step equals ``ladrc job``: its figures and its bag.
+
+    The sim node plays the simulated CNC (cnc/motion out, the follow services called, the
+    controller's answers read from follow/status); the controller's tick waits for the CNC's
+    sample the step names, the CNC for the status answering the step. tipping_pair (shipped):
+    a pierce, a part tipping up, the collision retract, the FAULT and its feed hold; small:
+    three contours with pierce stages and leapfrogs, parts dropping out, corner and edge-ahead
+    holds, the job's own controller parameters over the shipped set.
+    """
+    name = small_job(tmp_path) if job == 'small' else job
+    live, headless = tmp_path / 'live', tmp_path / 'headless'
+    figures = lockstep_run(name, live, tmp_path / 'logs', '--job')
+    res = run([str(BIN / 'ladrc'), 'job', name, '-o', str(headless)])
+    assert res.returncode == 0, res.stdout[-2000:]
+    head = json.loads(res.stdout.strip().splitlines()[-1])
+    for key in JOB_FIGURES:  # (JSON: the contours' keys are text in both)
+        assert figures[key] == head[key], (key, figures[key], head[key])
+    assert_equal_bags(headless / 'bag', live, int(round(head['job_time_s'] / 0.0005)))
+    if job == 'tipping_pair':
+        assert figures['contacts'] >= 1 and figures['faults'] == 1
+    else:
+        assert figures['finished'] and figures['contacts'] == 0 and figures['pierces'] == 3
+        assert figures['holds']['corner_lock']['count'] > 0
 
 
 SHORT = """name: lockstep_end

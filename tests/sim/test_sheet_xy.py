@@ -99,3 +99,21 @@ def test_short_segments_never_reach_the_feed():
     m = PathMotion(np.array([[0, 0], [2.0, 0]]), 100.0, 2000.0, 0.05, H)
     _, v = run(m)
     assert v.max() <= math.sqrt(2000.0 * 2.0) * 1.02 < 100.0  # a triangle: sqrt(a L) peak
+
+
+def test_the_row_sums_after_kerfs_and_drops_equal_a_sum_of_the_whole_raster(plate):
+    """The window-only update of the row prefix sums (kerfs, prepared and unprepared drops)."""
+    sheet = SheetXY(plate)
+    parts = [box(20, 20, 60, 60), Point(150, 30).buffer(8)]
+    sheet.prepare(parts[:1])  # one rasterised before, one when it drops
+    rng = np.random.default_rng(3)
+    for x0, y0, x1, y1 in rng.uniform(5, 95, (40, 4)) * [2, 1, 2, 1]:
+        sheet.lay_kerf(x0, y0, x1, y1, 0.3)
+    for part in parts:
+        sheet.drop(part)
+    m = sheet.material
+    assert not m[sheet._index(40, 40)] and not m[sheet._index(150, 30)]
+    whole = np.zeros((m.shape[0], m.shape[1] + 1), dtype=np.int64)
+    whole[:, 1:] = np.cumsum(m, axis=1)
+    assert np.array_equal(sheet._prefix, whole)
+    assert np.array_equal(sheet._material_pad[:, :-1], m)

@@ -16,8 +16,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from .cli_common import CliError
 
 FEATURES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
@@ -41,31 +39,14 @@ def _add_job(p: argparse.ArgumentParser) -> None:
     p.add_argument('-o', '--output', help='folder for job.json, job.png and bag/ (must not exist)')
 
 
-def shipped_jobs() -> dict[str, Path]:
-    """Return the shipped job files by name."""
-    from importlib.resources import files
-
-    folder = Path(str(files('ladrc_sim.job') / 'jobs'))
-    return {p.stem: p for p in sorted(folder.glob('*.yaml'))}
-
-
 def load(name: str) -> Any:
     """Return the job of a path or a shipped name; CliError (one line) when unusable."""
-    from ladrc_sim.job.jobfile import JobError, load_job
+    from ladrc_sim.job.jobfile import JobError, find_job
 
-    path = Path(name)
-    if not path.exists():
-        shipped = shipped_jobs()
-        if name not in shipped:
-            raise CliError(f'{name}: no such job file or shipped job '
-                           f'(shipped: {", ".join(shipped) or "none"})')
-        path = shipped[name]
     try:
-        job = load_job(path)
-        job.program()
+        return find_job(name)
     except JobError as exc:
         raise CliError(str(exc)) from None
-    return job
 
 
 def run(job: Any, off: list[str], record_internals: bool = False) -> Any:
@@ -93,12 +74,11 @@ def run(job: Any, off: list[str], record_internals: bool = False) -> Any:
 def write_bag(job: Any, result: Any, path: Path) -> None:
     """Write a job run as a bag: the live layout, the job file and its DXF in run/scenario."""
     from ladrc_follow.control.params import dump_params
+    from ladrc_sim.job.jobfile import run_text
 
     from .bags.bag import write_run_bag
 
-    text = yaml.safe_dump({'job': job.path.read_text(encoding='utf-8'),
-                           'dxf': job.dxf.read_text(encoding='utf-8', errors='replace')})
-    write_run_bag(result.as_run(), path, dump_params(result.params), text)
+    write_run_bag(result.as_run(), path, dump_params(result.params), run_text(job))
 
 
 def _run_job(a: argparse.Namespace) -> int:

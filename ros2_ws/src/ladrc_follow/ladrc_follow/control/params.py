@@ -304,6 +304,17 @@ def _nest_dotted(d: dict) -> dict:
     return out
 
 
+def dotted(d: dict, prefix: str = '') -> dict[str, Any]:
+    """Flatten a nested parameter mapping to dotted names ('eso.b0'); the inverse of nesting."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(dotted(v, f'{prefix}{k}.'))
+        else:
+            out[f'{prefix}{k}'] = v
+    return out
+
+
 def _unwrap_ros(d: dict, node_name: str | None) -> dict:
     """Return the parameters of a ROS 2 params file, or ``d`` if it is plain."""
     ros = {k: v for k, v in d.items()

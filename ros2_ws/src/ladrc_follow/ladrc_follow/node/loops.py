@@ -121,7 +121,7 @@ def run_lockstep(node: FollowNode, running: list[bool]) -> None:
     timeout_ns = int(node.node_params.lockstep_timeout_s * 1e9)
     s = node.samples
     wait_step = SampleWait(node.context, (s.step_reader,))
-    wait_samples = SampleWait(node.context, (s.gap_reader, s.fb_reader))
+    wait_samples = SampleWait(node.context, (s.gap_reader, s.fb_reader, s.cnc_reader))
     while running[0]:
         _guarded(node, s.take)
         if node.step_ready():

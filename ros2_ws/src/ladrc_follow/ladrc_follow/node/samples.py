@@ -66,6 +66,7 @@ class SampleInputs:
             'header.stamp.sec', 'header.stamp.nanosec', 'seq', 'segment', 'beam_on', 'contour',
             'commanded_feed_mm_s', 'actual_feed_mm_s', 'segment_left_mm', 'edge_ahead_mm')]
         self.cnc: CncInput | None = None  # the CNC's newest motion sample, until a tick takes it
+        self._cnc_last_seq = -1
         gi, fi = self._gap_cdr.index, self._fb_cdr.index
         self._gap_fields = [gi[n] for n in ('header.stamp.sec', 'header.stamp.nanosec', 'seq',
                                             'gap_mm', 'raw_hz', 'valid', 'status')]
@@ -103,8 +104,9 @@ class SampleInputs:
         self._rate_window: tuple[int, int] | None = None  # (first seq, its receive ns)
         self.sample_period_s = math.nan  # measured from the feedback seq (loop 'sync')
         self.period_fault = ''
-        # lock step: the step waiting for its samples, and when the last one came (wall clock)
-        self.step: tuple[int, int, bool, int, bool, int] | None = None
+        # lock step: the step waiting for its samples (step, gap seq, fresh, encoder seq, fresh,
+        # stamp ns, CNC seq, fresh), and when the last one came (wall clock)
+        self.step: tuple[int, int, bool, int, bool, int, int, bool] | None = None
         self.step_wall_ns = 0
 
     # ---- taking ---------------------------------------------------------------------------
@@ -219,6 +221,7 @@ class SampleInputs:
         sec, nsec, seq, seg, beam, contour, cmd, act, left, ahead = (
             values[i] for i in self._cnc_fields)
         stamp_s, ok = self._receive(CNC_MOTION_TOPIC, sec * 1_000_000_000 + nsec, received_ns)
+        self._cnc_last_seq = seq
         self.cnc = CncInput(max(seq, 1), stamp_s if ok else -math.inf, seg, beam, contour, cmd,
                             act, left, ahead)
 
@@ -252,8 +255,10 @@ class SampleInputs:
         values = self._parse(self._step_cdr, data)
         if values is None:
             return
-        sec, nsec, _frame, step, gap_seq, gap_fresh, enc_seq, enc_fresh = values
-        self.step = (step, gap_seq, gap_fresh, enc_seq, enc_fresh, sec * 1_000_000_000 + nsec)
+        sec, nsec, _frame, step, gap_seq, gap_fresh, enc_seq, enc_fresh, cnc_seq, cnc_fresh = (
+            values)
+        self.step = (step, gap_seq, gap_fresh, enc_seq, enc_fresh, sec * 1_000_000_000 + nsec,
+                     cnc_seq, cnc_fresh)
         self.step_wall_ns = time.monotonic_ns()
 
     # ---- what the loop asks ---------------------------------------------------------------
@@ -265,7 +270,8 @@ class SampleInputs:
         """
         s = self.step
         return s is not None and (topology_problem or (
-            (not s[2] or self._gap_last_seq == s[1]) and (not s[4] or self._enc_last_seq == s[3])))
+            (not s[2] or self._gap_last_seq == s[1]) and (not s[4] or self._enc_last_seq == s[3])
+            and (not s[7] or self._cnc_last_seq == s[6])))
 
     def consume_cycle(self) -> bool:
         """Loop 'sync': this tick takes one cycle of each input; False if one was missing."""

@@ -29,6 +29,8 @@ from .motion import PathMotion
 RAPID, CUT, PIERCE, NONE = (int(Segment.RAPID), int(Segment.CUT), int(Segment.PIERCE),
                             int(Segment.NONE))
 FAULT = int(FollowState.FAULT)
+COMMANDS = ('leapfrog', 'lift', 'pierce', 'stop_follow')
+"""The follow commands the CNC sends (ladrc_contract.services names)."""
 
 
 @dataclass(frozen=True)
@@ -96,7 +98,11 @@ class Cnc:
     def _cmd(self, name: str, **kw: Any) -> None:
         ok, msg = self.command(name, **kw)
         if not ok:
-            self._abort(f'{name} refused: {msg}')
+            self.refused(name, msg)
+
+    def refused(self, name: str, message: str) -> None:
+        """Abort the job: a command was refused (live: its answer may come ticks later)."""
+        self._abort(f'{name} refused: {message}')
 
     def _abort(self, why: str) -> None:
         if not self.log.aborted:

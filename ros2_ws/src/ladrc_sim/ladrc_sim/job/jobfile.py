@@ -210,3 +210,32 @@ def load_job(path: str | Path) -> Job:
                start_xy=start, dxf_origin_mm=origin,
                start_height_mm=float(data.get('start_height_mm', 10.0)),
                seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}))
+
+
+JOBS_DIR = Path(__file__).resolve().parent / 'jobs'
+"""The shipped job library (``ladrc job NAME``, ``bringup --job NAME``)."""
+
+
+def shipped_jobs() -> dict[str, Path]:
+    """Return the shipped job files by name."""
+    return {p.stem: p for p in sorted(JOBS_DIR.glob('*.yaml'))}
+
+
+def find_job(name: str | Path) -> Job:
+    """Return the job of a path or a shipped job's name, its program read; JobError (one line)."""
+    path = Path(name)
+    if not path.exists():
+        shipped = shipped_jobs()
+        if str(name) not in shipped:
+            raise JobError(f'{name}: no such job file or shipped job '
+                           f'(shipped: {", ".join(shipped) or "none"})')
+        path = shipped[str(name)]
+    job = load_job(path)
+    job.program()
+    return job
+
+
+def run_text(job: Job) -> str:
+    """Return the job's ``run/scenario`` text: its job file and its DXF, as written."""
+    return yaml.safe_dump({'job': job.path.read_text(encoding='utf-8'),
+                           'dxf': job.dxf.read_text(encoding='utf-8', errors='replace')})

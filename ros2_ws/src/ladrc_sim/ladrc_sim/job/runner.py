@@ -8,7 +8,12 @@ reading, the encoder and the CNC's sample; the axis integrates the command; the 
 kerf; a contour cut to its end drops its region (or tips it up, ``tip_parts``).
 
 Duck-typed controller, as the scenario runner's: ``step(tick, cnc)``, ``command(name, **kw)``
-and ``internals()`` (``FollowController``). Same job + seed -> identical series.
+(returns ``(accepted, message)``) and ``internals()`` (``FollowController``); optionally, as a
+drive on the ROS graph has them (the sim node's ``JobDrive``): ``truth(t_s, true_gap_mm,
+sheet_mm, nozzle_mm, coverage, plate_velocity_mm_s, x_mm, y_mm)`` before each ``step``,
+``quick_stop()`` (the drive brakes at its maximum deceleration) and ``refusals()`` (commands
+refused after they were sent: the CNC aborts as on a refusal at once). Same job + seed ->
+identical series.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from ladrc_contract.tick import TickInput
 import numpy as np
 
 from ..models.axis import H_S, Axis, AxisParams
-from ..models.sensor import Sensor
+from ..models.sensor import Sensor, SensorParams, oscillator_hz
 from ..models.sheet_xy import SheetXY
 from .cnc import Cnc
 
@@ -47,6 +52,7 @@ class JobResult:
     wall_s: float
     events: list[tuple[int, str, dict]] = field(default_factory=list)  # (tick, command, args)
     internals: dict[str, np.ndarray] | None = None  # the controller's status, every tick
+    sensor: SensorParams | None = None  # the job's sensor (the raw value behind each reading)
 
     def as_run(self, h_s: float = H_S) -> JobRun:
         """Return the run in the scenario runner's result layout (a bag writer's input)."""
@@ -82,8 +88,15 @@ class JobRun:
         self.command_mm_s = s['command_mm_s']
         self.target_gap_mm = s['target_gap_mm']
         self.internals = result.internals
+        self._sensor = result.sensor
         self.scenario = _Scenario(result.name, tuple(
             _Command(k * h_s, name, dict(args)) for k, name, args in result.events))
+
+    def raw_hz(self) -> np.ndarray:
+        """Capacitive oscillator frequency (Hz) behind each reading, as the sim node sends it."""
+        if self._sensor is None:
+            return np.full(self.t_s.size, np.nan)
+        return oscillator_hz(self.reading_mm, self._sensor)
 
 
 @dataclass(frozen=True)
@@ -101,6 +114,7 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     h = H_S
     program = job.program()
     sheet = SheetXY(job.plate(), job.surface, nozzle_diameter_mm=job.sensor.nozzle_diameter_mm)
+    sheet.prepare([c.region for c in program.contours])  # what drops out: cheap in the loop
     budget_s = max_s if max_s is not None else job.time_budget_s(program)
     n = int(budget_s / h)
     rng = np.random.default_rng(job.seed)
@@ -120,6 +134,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     kerf_from: tuple[float, float] | None = None
     tips = set(job.tip_parts)
     c_step, c_internals = controller.step, controller.internals
+    c_truth, c_quick_stop, c_refusals = (
+        getattr(controller, name, None) for name in ('truth', 'quick_stop', 'refusals'))
     last = 0
     end_tick = -1  # the tick the CNC finished or aborted
     rows: list[dict] | None = [] if record_internals else None
@@ -127,6 +143,9 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     for i in range(n):
         tick_i = i
         t = i * h
+        if c_refusals is not None:
+            for name, message in c_refusals():
+                cnc.refused(name, message)
         sample = cnc.step(answers)
         x, y = cnc.x, cnc.y
         for k in cnc.cut_done:  # a contour cut to its end: its region drops (or tips)
@@ -143,9 +162,11 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
         if collision:
             valid = False
         status = 0 if valid else (2 if collision else 1)
+        if c_truth is not None:
+            c_truth(t, true_gap, z - true_gap, z, cov, math.nan, x, y)
         u = c_step(TickInput(t, reading, valid, t, z, t, True, False, status), sample)
         answers = c_internals()
-        axis.step(u, True, False)
+        axis.step(u, True, c_quick_stop is not None and c_quick_stop())
         if cnc.beam and cnc.segment == int(Segment.CUT):  # the kerf, as it is cut
             if kerf_from is None:
                 kerf_from = (x, y)
@@ -155,8 +176,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
         elif kerf_from is not None:
             sheet.lay_kerf(kerf_from[0], kerf_from[1], x, y, job.kerf_mm)
             kerf_from = None
-        if rows is not None:
-            rows.append(answers)
+        if rows is not None:  # with the drive enable the command went out with (the bag's)
+            rows.append({**answers, 'command_enable': bool(getattr(controller, 'enable', True))})
         row = (t, x, y, z, true_gap, reading, valid, cov, u, answers['state'], answers['substate'],
                cnc.segment, cnc.contour, cnc.beam, answers['target_gap_mm'],
                cnc.move.v if cnc.move is not None else 0.0, cnc.feed_mm_s,
@@ -181,7 +202,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
         internals = {k: np.array([r[k] for r in rows], dtype=object if isinstance(v, str)
                                  else None) for k, v in rows[0].items()}
     return JobResult(job.name, series, job_figures(series, h, cnc.log, len(program.contours),
-                                                   lock_ratio), cnc.log, wall, events, internals)
+                                                   lock_ratio), cnc.log, wall, events, internals,
+                     job.sensor)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -59,7 +59,10 @@ class DriveBridge:
         # the commander lock and the held command: the loop thread takes commands, the
         # service thread resets the drive
         self.mutex = threading.Lock()
-        self._wait = SampleWait(node.context, (node.cmd_reader,))
+        # woken by a command, or (a job in lock step) by the controller's status
+        status = getattr(node, 'status_reader', None)
+        self._wait = SampleWait(node.context, (node.cmd_reader,)
+                                + ((status,) if status is not None else ()))
         self.running = True
         h = node.h_s
         self.period_ns = int(round(h * 1e9))
@@ -77,7 +80,7 @@ class DriveBridge:
         self._resumed_ns = 0
         self.seq = 0
         self.truth_seq = 0  # sim/truth messages published (the step, but for silent cycles)
-        self.truth_values = (math.nan,) * 6
+        self.truth_values = (math.nan,) * 8
         self.late_ticks = 0
         self._prev_enc = math.nan
         self._prev_t = math.nan
@@ -96,10 +99,11 @@ class DriveBridge:
 
     # ---- the runner's hooks -------------------------------------------------------------
     def truth(self, t_s: float, true_gap_mm: float, sheet_mm: float, nozzle_mm: float,
-              coverage: float, plate_velocity_mm_s: float) -> None:
-        """Truth of the coming tick (called by the runner before ``step``)."""
+              coverage: float, plate_velocity_mm_s: float, x_mm: float = math.nan,
+              y_mm: float = math.nan) -> None:
+        """Truth of the coming tick (called by the runner before ``step``; XY: a job's)."""
         self.truth_values = (true_gap_mm, sheet_mm, nozzle_mm, coverage, plate_velocity_mm_s,
-                             t_s)
+                             t_s, x_mm, y_mm)
 
     def command(self, name: str, **kwargs: Any) -> None:
         """Send a scenario follow command to the controller's service.
@@ -178,6 +182,13 @@ class DriveBridge:
         reason = self.lock.fault_reason or self.fault_reason or (
             DRIVE_FAULT_REASON if tick.drive_fault else '')
         return bool(reason), reason
+
+    def will_be_silent(self) -> bool:
+        """Live: the coming cycle is late by more than one, so it is caught up silently."""
+        if self.lockstep or not self.realtime or self.t_start_ns == 0:
+            return False
+        due_ns = self.t_start_ns + self.seq * self.period_ns
+        return time.monotonic_ns() - due_ns > self.period_ns
 
     def step(self, tick) -> float:
         """Wait for this tick's deadline, publish its samples, return the latest command."""

@@ -1,8 +1,11 @@
 """The sim node: the simulated Z axis as a drive on the ROS graph, in real time at 2 kHz.
 
 It runs a scenario with the *same* headless runner (:func:`ladrc_sim.headless.runner.run`) and
-the same models: the "controller" the runner steps is a :class:`DriveBridge` that, at each 0.5 ms
-deadline, takes the velocity commands that arrived (straight from the reader, raw:
+the same models, or a cutting job (``-p job:=NAME``) with the *same* job runner
+(:func:`ladrc_sim.job.runner.run_job`: the simulated CNC, the sheet in XY; :mod:`.job_drive`
+sends the CNC's ``cnc/motion`` and its commands and reads the controller's answers on
+``follow/status``): the "controller" the runner steps is a :class:`DriveBridge` that, at each
+0.5 ms deadline, takes the velocity commands that arrived (straight from the reader, raw:
 :mod:`ladrc_contract.loop_io`), publishes the tick's capacitive height, axis feedback and truth
 (pre-serialized CDR), and returns the latest command (one tick of transport delay, as on a
 fieldbus). The loop thread spins no executor: ``axis/reset_drive``, the scenario's follow
@@ -50,15 +53,25 @@ from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.service_thread import ServiceThread
 from ladrc_contract.services import FOLLOW_SERVICES, fill_request, service_class
 from ladrc_contract.topics import (
+    CNC_MOTION_TOPIC,
     COMMAND_TOPIC,
     DIAGNOSTICS_TOPIC,
     FEEDBACK_TOPIC,
     GAP_TOPIC,
     LOCKSTEP_TOPIC,
     SCENARIO_TOPIC,
+    STATUS_TOPIC,
     TRUTH_TOPIC,
 )
-from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
+from ladrc_msgs.msg import (
+    AxisFeedback,
+    CapacitiveHeight,
+    CncMotion,
+    FollowStatus,
+    LockStep,
+    SimTruth,
+    VelocityCommand,
+)
 from ladrc_msgs.srv import ResetFault
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -71,9 +84,13 @@ from ..headless.scenario import (
     list_scenarios,
     load_scenario,
 )
+from ..job.cnc import COMMANDS as CNC_COMMANDS
+from ..job.jobfile import JobError, find_job, run_text
+from ..job.runner import run_job
 from ..models.sensor import oscillator_hz_scalar
 from .commander_lock import describe
 from .drive_bridge import COMMAND_FIELDS, DriveBridge, LockstepAbort, StopSimulation
+from .job_drive import JobDrive
 
 
 class _Outgoing:
@@ -100,6 +117,10 @@ class SimNode(LoopNode):
     def __init__(self) -> None:
         super().__init__('ladrc_sim')
         self.declare_parameter('scenario', 'showcase')
+        # a cutting job instead of a scenario: a shipped job's name or a job file (YAML)
+        self.declare_parameter('job', '')
+        # a job's figures (job/runner.py job_figures, with wall_s and realtime_x) as JSON here
+        self.declare_parameter('figures_file', '')
         self.declare_parameter('exit_at_end', True)
         self.declare_parameter('realtime', True)
         self.declare_parameter('watchdog_timeout_s', 0.005)
@@ -124,7 +145,11 @@ class SimNode(LoopNode):
         self.lockstep_timeout_s = float(self.get_parameter('lockstep_timeout_s').value)
         if not self.lockstep_timeout_s > 0:
             raise ValueError('lockstep_timeout_s must be > 0')
-        self.scenario = load_scenario(self.get_parameter('scenario').value)
+        job = str(self.get_parameter('job').value)
+        self.job = find_job(job) if job else None
+        self.scenario = None if self.job else load_scenario(self.get_parameter('scenario').value)
+        self.run_name = self.job.name if self.job else self.scenario.name
+        self.sensor = self.job.sensor if self.job else self.scenario.sensor
         self.h_s = 0.0005
         self.watchdog_timeout_s = float(self.get_parameter('watchdog_timeout_s').value)
         self.watchdog_recover_s = float(self.get_parameter('watchdog_recover_s').value)
@@ -138,6 +163,14 @@ class SimNode(LoopNode):
         self.pub_truth = self.create_publisher(SimTruth, TRUTH_TOPIC, high_rate)
         self.pub_step = (self.create_publisher(LockStep, LOCKSTEP_TOPIC, high_rate)
                          if self.lockstep else None)
+        # a job: the CNC's motion out, the controller's answers in (job_drive.py)
+        self.pub_cnc = (self.create_publisher(CncMotion, CNC_MOTION_TOPIC, high_rate)
+                        if self.job else None)
+        self.status_reader = (self.create_loop_reader(
+            FollowStatus, STATUS_TOPIC,
+            to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.CONTROL_INPUT))
+            if self.job else None)
+        self.cnc_seq, self.cnc_fresh = 0, False  # LockStep.cnc_seq / cnc_fresh of the step
         self.pub_diag = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
                                               to_rclpy(qos.DIAGNOSTICS))
         # The scenario text, latched: a recorder puts it into the bag (self-describing runs).
@@ -157,14 +190,17 @@ class SimNode(LoopNode):
         self._out = {name: _Outgoing(f'ladrc_msgs/msg/{name}', frame)
                      for name, frame in (('CapacitiveHeight', self.frame_id),
                                          ('AxisFeedback', self.frame_id),
-                                         ('SimTruth', self.frame_id), ('LockStep', ''))}
+                                         ('SimTruth', self.frame_id), ('LockStep', ''),
+                                         ('CncMotion', 'machine'))}
         self.gap_seq = 0  # seq of the newest capacitive sample (LockStep.gap_seq)
         self.enc_seq = 0
         self.create_timer(1.0, self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def scenario_text(self) -> str:
-        """YAML text of the scenario being played (its file as written)."""
+        """YAML text of the scenario being played (its file as written), or of the job."""
+        if self.job is not None:
+            return run_text(self.job)
         source = getattr(self.scenario, 'source', '') or ''
         shipped = {q.stem: q for q in list_scenarios()}
         for path in (Path(source), shipped.get(source)):
@@ -235,7 +271,7 @@ class SimNode(LoopNode):
         # falls as the capacitance rises (as the nozzle approaches)
         gap = out['CapacitiveHeight'].pack(
             sec, nsec, seq=self.gap_seq, gap_mm=math.nan if self.raw_only else reading,
-            raw_hz=oscillator_hz_scalar(reading, self.scenario.sensor),
+            raw_hz=oscillator_hz_scalar(reading, self.sensor),
             valid=bool(tick.gap_valid),
             status=int(getattr(tick, 'gap_status', 0 if tick.gap_valid else 1)))
         dt = tick.t_s - bridge._prev_t
@@ -259,18 +295,41 @@ class SimNode(LoopNode):
             # publishes what only the recorder reads
             self.pub_step.publish(out['LockStep'].pack(
                 sec, nsec, step=seq, gap_seq=self.gap_seq, gap_fresh=gap_fresh,
-                encoder_seq=self.enc_seq, encoder_fresh=enc_fresh))
+                encoder_seq=self.enc_seq, encoder_fresh=enc_fresh, cnc_seq=self.cnc_seq,
+                cnc_fresh=self.cnc_fresh))
+        self.cnc_fresh = False
         true_gap, sheet, nozzle, coverage, plate_velocity = (float(v) for v in truth[:5])
         # seq: truth messages published (the step in lock step; silent cycles send none)
         self.pub_truth.publish(out['SimTruth'].pack(
             sec, nsec, seq=bridge.truth_seq, true_gap_mm=true_gap, sheet_mm=sheet,
             nozzle_mm=nozzle, edge_coverage=coverage, plate_velocity_mm_s=plate_velocity,
-            collision=bool(true_gap <= 0.0), x_mm=math.nan, y_mm=math.nan))
+            collision=bool(true_gap <= 0.0), x_mm=float(truth[6]), y_mm=float(truth[7])))
         bridge.truth_seq += 1
+
+    def publish_cnc(self, cnc, x_mm: float, y_mm: float) -> None:
+        """Publish the CNC's motion sample of this tick (``CncInput``) on ``cnc/motion``.
+
+        Stamped with the node clock; lock step: with the sim's time of the CNC's cycle (its
+        ``stamp_s``, whole periods), and named in the step's ``LockStep`` (the controller's
+        tick waits for it).
+        """
+        if self.lockstep:
+            stamp_ns = round(cnc.stamp_s / self.h_s) * self.bridge.period_ns
+            self.cnc_seq, self.cnc_fresh = cnc.seq, True
+        else:
+            stamp_ns = self.get_clock().now().nanoseconds
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        self.pub_cnc.publish(self._out['CncMotion'].pack(
+            sec, nsec, seq=cnc.seq, x_mm=float(x_mm), y_mm=float(y_mm),
+            commanded_feed_mm_s=float(cnc.commanded_feed_mm_s),
+            actual_feed_mm_s=float(cnc.actual_feed_mm_s), segment=int(cnc.segment),
+            beam_on=bool(cnc.beam_on), contour=int(cnc.contour),
+            segment_left_mm=float(cnc.segment_left_mm), edge_ahead_mm=float(cnc.edge_ahead_mm)))
 
     def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""
-        needed = {e.name for e in self.scenario.timeline if e.name in FOLLOW_SERVICES}
+        needed = (set(CNC_COMMANDS) if self.job is not None else
+                  {e.name for e in self.scenario.timeline if e.name in FOLLOW_SERVICES})
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if all(self.follow_clients[n].service_is_ready() for n in needed) and (
@@ -284,7 +343,9 @@ class SimNode(LoopNode):
         return (self.pub_step.get_subscription_count() > 0
                 and self.pub_gap.get_subscription_count() > 0
                 and self.pub_fb.get_subscription_count() > 0
-                and self.count_publishers(self.cmd_reader.topic_name) > 0)
+                and self.count_publishers(self.cmd_reader.topic_name) > 0
+                and (self.job is None or (self.pub_cnc.get_subscription_count() > 0
+                                          and self.count_publishers(STATUS_TOPIC) > 0)))
 
     def wait_for_recorder(self, timeout_s: float) -> bool:
         """Wait until something (the recorder) subscribes to sim/truth."""
@@ -308,13 +369,22 @@ class SimNode(LoopNode):
         st.message = reason or 'running'
         values = {'seq': b.seq, 'period_p99_us': round(p99, 1), 'late_ticks': b.late_ticks,
                   'commands_received': b.cmd_count, 'watchdog_trips': b.watchdog_trips,
-                  'scenario': self.scenario.name,
+                  'scenario': self.run_name,
                   'commander': describe(b.lock.owner) if b.lock.owner else '',
                   'commanders': json.dumps(self.commander_summary())}
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(arr)
+
+
+def write_figures(path: str, figures: dict) -> None:
+    """Write a job's figures as JSON to ``path`` (whole or not at all); '' writes nothing."""
+    if not path:
+        return
+    tmp = Path(f'{path}.part')
+    tmp.write_text(json.dumps(figures, default=str) + '\n', encoding='utf-8')
+    tmp.replace(path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -324,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         try:
             node = SimNode()
-        except (ScenarioError, ValueError) as exc:
+        except (ScenarioError, JobError, ValueError) as exc:
             print(f'sim_node: {exc}', file=sys.stderr)
             return 2
         cpu = int(node.get_parameter('cpu').value)
@@ -364,10 +434,20 @@ def main(argv: list[str] | None = None) -> int:
         settle = time.monotonic() + float(node.get_parameter('start_delay_s').value)
         while time.monotonic() < settle:
             time.sleep(0.05)
-        node.get_logger().info(f'scenario {node.scenario.name}: {node.scenario.duration_s} s')
         try:
-            result = run(node.scenario, bridge)
-            node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
+            if node.job is not None:
+                node.get_logger().info(f'job {node.job.name}: '
+                                       f'{len(node.job.program().contours)} contours')
+                job = run_job(node.job, JobDrive(node, bridge))
+                figures = {**job.figures, 'wall_s': round(job.wall_s, 3), 'realtime_x': round(
+                    job.figures['job_time_s'] / max(job.wall_s, 1e-9), 3)}
+                node.get_logger().info(f'job done: {json.dumps(figures, default=str)}')
+                write_figures(str(node.get_parameter('figures_file').value), figures)
+            else:
+                node.get_logger().info(f'scenario {node.scenario.name}: '
+                                       f'{node.scenario.duration_s} s')
+                result = run(node.scenario, bridge)
+                node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
         except StopSimulation:
             pass
         except LockstepAbort as exc:
@@ -376,8 +456,9 @@ def main(argv: list[str] | None = None) -> int:
         if node.lockstep:
             # reliable writers repair only while they exist: the readers (the recorder, which
             # may lag on a loaded machine) get every message before this node goes down
-            late = wait_acknowledged((node.pub_gap, node.pub_fb, node.pub_step, node.pub_truth),
-                                     node.lockstep_timeout_s)
+            late = wait_acknowledged(tuple(p for p in (node.pub_gap, node.pub_fb, node.pub_step,
+                                                       node.pub_truth, node.pub_cnc)
+                                           if p is not None), node.lockstep_timeout_s)
             if late:
                 node.get_logger().warning(
                     f'lock step: messages on {", ".join(late)} not acknowledged by every '

@@ -1,8 +1,9 @@
 """Bring-up without ros2cli: the sim node, the follow node and the recorder as processes.
 
-``bringup --scenario showcase --params config/follow.yaml --bag out/run1`` starts each node as a
-separate process on an isolated DDS domain (its own ``ROS_DOMAIN_ID``, localhost discovery),
-waits until the simulator has played its scenario (or Ctrl-C), then stops them in the safe
+``bringup --scenario showcase --params config/follow.yaml --bag out/run1`` (or ``--job NAME``:
+a cutting job, the sim node playing the simulated CNC) starts each node as a separate process
+on an isolated DDS domain (its own ``ROS_DOMAIN_ID``, localhost discovery), waits until the
+simulator has played its scenario (or Ctrl-C), then stops them in the safe
 order: the controller first (it commands zero velocity), then the simulator, then the recorder
 (so the bag holds the stop). ``launch/bringup.launch.py`` starts the same nodes with the same
 arguments from :func:`node_specs` on a stock Jazzy install.
@@ -16,11 +17,13 @@ import json
 import os
 from pathlib import Path
 import random
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
-from typing import Mapping
+from typing import Any, Mapping
 
 
 @dataclass
@@ -55,16 +58,17 @@ LIVE_LOOPS = ('deadline', 'sync')
 
 def node_specs(scenario: str, params_file: str | None = None, bag: str | None = None,
                loop: str = 'deadline', storage: str = 'mcap', lockstep: bool = False,
-               paced: bool = True) -> list[NodeSpec]:
+               paced: bool = True, job: str | None = None) -> list[NodeSpec]:
     """Return the nodes of a simulated run: the one configuration bringup and launch share.
 
     ``lockstep``: the sim node and the follow node in lock step (docs/follow-node.md), the
     recorder reliable; ``paced``: lock step no faster than real time (else as fast as the
-    two processes go).
+    two processes go); ``job``: the sim node plays this cutting job instead of ``scenario``.
     """
     specs = []
     if bag:
-        rec: dict[str, object] = {'output': bag, 'storage': storage, 'scenario': scenario}
+        rec: dict[str, object] = {'output': bag, 'storage': storage,
+                                  'scenario': job or scenario}
         if lockstep:
             rec['reliable'] = True
         specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder', parameters=rec))
@@ -76,7 +80,8 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
     specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',
                           parameters={'loop': 'lockstep' if lockstep else loop},
                           params_file=params_file or default_params_file()))
-    sim: dict[str, object] = {'scenario': scenario, 'exit_at_end': True}
+    sim: dict[str, object] = {'exit_at_end': True, **({'job': job} if job else
+                                                      {'scenario': scenario})}
     if lockstep:
         sim.update({'lockstep': True, 'realtime': bool(paced)})
     if bag:  # the bag holds the run from its first tick
@@ -259,11 +264,57 @@ def interrupt_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
     return proc.returncode
 
 
+def job_params_file(job_name: str, base_file: str | None, folder: Path) -> str:
+    """Write the follow node's parameters of a job: ``base_file`` with the job's overrides.
+
+    The job file's ``controller`` section over the given (or shipped) set, through the same
+    validation and stability gate as ``ladrc job`` (a headless job runs the same set). Raises
+    ValueError with one line when the job or the set is unusable.
+    """
+    from ladrc_follow.analysis.gate import check_gate
+    from ladrc_follow.control.params import (
+        ParameterError,
+        dotted,
+        dump_params,
+        load_params,
+        params_from_dict,
+        params_to_dict,
+    )
+    from ladrc_sim.job.jobfile import JobError, find_job
+
+    try:
+        job = find_job(job_name)
+    except JobError as exc:
+        raise ValueError(str(exc)) from None
+    try:
+        base = load_params(base_file or default_params_file())
+    except ParameterError as exc:
+        raise ValueError(' '.join(str(exc).split())) from None
+    try:
+        params = check_gate(params_from_dict({**dotted(params_to_dict(base)),
+                                              **dotted(job.controller)}))
+    except ParameterError as exc:
+        raise ValueError(f'{job.path}: controller: {" ".join(str(exc).split())}') from None
+    path = folder / 'job_params.yaml'
+    path.write_text(dump_params(params, '/**'), encoding='utf-8')
+    return str(path)
+
+
+def job_figures(path: Path | None) -> dict[str, Any]:
+    """Return the job's figures the sim node wrote; ``{'finished': False}`` if it wrote none."""
+    if path is None or not path.is_file():
+        return {'finished': False, 'aborted': 'the job did not end (no figures written)'}
+    return json.loads(path.read_text(encoding='utf-8'))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``bringup``."""
     ap = argparse.ArgumentParser(prog='bringup', description=__doc__.split('\n\n')[0])
     ap.add_argument('--scenario', default='showcase',
                     help='scenario name (shipped library) or YAML path [showcase]')
+    ap.add_argument('--job', default=None,
+                    help='play a cutting job instead: a shipped job name or a job file '
+                    '(ladrc_sim jobs; its controller section overrides --params)')
     ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')
     ap.add_argument('--bag', default=None, help='record a bag to this folder (must not exist)')
     ap.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
@@ -282,8 +333,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.bag and Path(args.bag).exists():
         print(f'bringup: {args.bag} exists; choose a new bag folder', file=sys.stderr)
         return 2
-    specs = node_specs(args.scenario, args.params, args.bag, args.loop, args.storage,
-                       lockstep=args.lockstep, paced=not args.unpaced)
+    scratch = Path(tempfile.mkdtemp(prefix='bringup-')) if args.job else None
+    try:
+        params = (job_params_file(args.job, args.params, scratch) if scratch is not None
+                  else args.params)
+    except ValueError as exc:
+        shutil.rmtree(scratch, ignore_errors=True)
+        print(f'bringup: {exc}', file=sys.stderr)
+        return 2
+    specs = node_specs(args.scenario, params, args.bag, args.loop, args.storage,
+                       lockstep=args.lockstep, paced=not args.unpaced, job=args.job)
+    figures_file = scratch / 'figures.json' if scratch is not None else None
+    if figures_file is not None:  # the sim node writes the job's figures there
+        next(s for s in specs if s.name == 'ladrc_sim').parameters['figures_file'] = str(
+            figures_file)
     env = isolated_env(args.domain_id)
     up = Bringup(specs, env, Path(args.logs) if args.logs else None)
     interrupted = [False]
@@ -293,8 +356,8 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
-    print(f'bringup: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} scenario={args.scenario}',
-          file=sys.stderr)
+    print(f'bringup: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} '
+          + (f'job={args.job}' if args.job else f'scenario={args.scenario}'), file=sys.stderr)
     try:
         up.start()
         deadline = time.monotonic() + args.timeout
@@ -308,7 +371,12 @@ def main(argv: list[str] | None = None) -> int:
                 break
     finally:
         codes = up.stop()
-    print(json.dumps({'bag': args.bag, 'exit_codes': codes}))
+        figures = job_figures(figures_file)
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+    # a job: its figures in the last line (docs/job-world.md); none if it did not end
+    print(json.dumps({'bag': args.bag, 'exit_codes': codes,
+                      **({'job': args.job, **figures} if args.job else {})}))
     return 0 if all(c in (0, -2, 130) for c in codes.values()) else 1
 
 

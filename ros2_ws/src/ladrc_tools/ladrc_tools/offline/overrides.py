@@ -12,6 +12,7 @@ from typing import Any, Iterable, Mapping
 from ladrc_follow.control.params import (
     ControllerParams,
     ParameterError,
+    dotted,
     params_from_dict,
     params_to_dict,
 )
@@ -21,16 +22,6 @@ from .recording import Recording, ReplayError
 
 
 # ---- what-if parameters -----------------------------------------------------------------------
-def _flat(d: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f'{prefix}{k}.'))
-        else:
-            out[f'{prefix}{k}'] = v
-    return out
-
-
 def parse_set(items: Iterable[str]) -> dict[str, Any]:
     """Parse ``key=value`` overrides (value as YAML: ``law.kp=12``, ``follow.controller=pid``)."""
     out: dict[str, Any] = {}
@@ -47,7 +38,7 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
 
 
 def _with(base: ControllerParams, overrides: Mapping[str, Any], what: str) -> ControllerParams:
-    flat = _flat(params_to_dict(base))
+    flat = dotted(params_to_dict(base))
     unknown = sorted(k for k in overrides if k not in flat)
     if unknown:
         raise ReplayError(f'{what}: unknown parameter {", ".join(unknown)} (names as in '
@@ -87,5 +78,5 @@ def whatif_params(rec: Recording, params_file: str | Path | None = None,
 
 
 def _delta(old: ControllerParams, new: ControllerParams) -> dict[str, Any]:
-    a, b = _flat(params_to_dict(old)), _flat(params_to_dict(new))
+    a, b = dotted(params_to_dict(old)), dotted(params_to_dict(new))
     return {k: v for k, v in b.items() if a.get(k) != v}
