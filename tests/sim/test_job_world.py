@@ -240,3 +240,24 @@ def test_ladrc_report_draws_and_measures_the_job_from_its_bag_alone(tmp_path):
     for key in ('cutting_s', 'rapid_s', 'pierce_s'):
         assert abs(f[key] - want[key]) <= 0.002 * 8, key
     assert '## Job `tipping_pair`' in (out / 'report.md').read_text()
+
+
+def test_a_job_on_a_terminal_shows_its_contours_cut_and_piped_shows_nothing(monkeypatch):
+    import io
+
+    from ladrc_tools.cli_job import contour_progress, load
+    from ladrc_tools.cli_job import run as run_cli
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    job = load('tipping_pair')  # two contours; the second ends in the collision (not cut)
+    for stream, shown in ((Terminal(), True), (io.StringIO(), False)):
+        monkeypatch.setattr('sys.stderr', stream)
+        run_cli(job, [], progress=contour_progress('ladrc job tipping_pair'))
+        text = stream.getvalue()
+        if shown:
+            assert text == '\rladrc job tipping_pair: contour 1/2 cut\n', text
+        else:
+            assert text == ''

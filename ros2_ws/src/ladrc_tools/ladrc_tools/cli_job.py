@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+import sys
 from typing import Any
 
 from .cli_common import CliError
@@ -49,7 +50,28 @@ def load(name: str) -> Any:
         raise CliError(str(exc)) from None
 
 
-def run(job: Any, off: list[str], record_internals: bool = False) -> Any:
+def contour_progress(label: str) -> Any:
+    """Return a ``progress(cut, contours)`` callback: ``label: contour k/n`` on a terminal.
+
+    One line on stderr, rewritten, ended when the run ends (:func:`run` calls it with 0, 0);
+    piped or logged, stderr carries nothing but the one line of an error.
+    """
+    shown = [False]
+
+    def show(cut: int, contours: int) -> None:
+        if not sys.stderr.isatty():
+            return
+        if contours == 0:  # the end
+            if shown[0]:
+                print(file=sys.stderr, flush=True)
+            return
+        shown[0] = True
+        print(f'\r{label}: contour {cut}/{contours} cut', end='', file=sys.stderr, flush=True)
+    return show
+
+
+def run(job: Any, off: list[str], record_internals: bool = False,
+        progress: Any = None) -> Any:
     """Run ``job`` with the features in ``off`` switched off; return its JobResult."""
     from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.follow import FollowController
@@ -66,7 +88,12 @@ def run(job: Any, off: list[str], record_internals: bool = False) -> Any:
         params = check_gate(params_from_dict(dict(job.controller)))
     except ParameterError as exc:
         raise CliError(f'{job.path}: controller: {" ".join(str(exc).split())}') from None
-    result = run_job(job, FollowController(params), record_internals=record_internals)
+    try:
+        result = run_job(job, FollowController(params), record_internals=record_internals,
+                         progress=progress)
+    finally:
+        if progress is not None:
+            progress(0, 0)
     result.params = params
     return result
 
@@ -86,11 +113,13 @@ def _run_job(a: argparse.Namespace) -> int:
     out_dir = Path(a.output) if a.output else None
     if out_dir is not None and out_dir.exists():
         raise CliError(f'{out_dir} exists already: nothing is overwritten')
-    result = run(job, a.off, record_internals=out_dir is not None)
+    result = run(job, a.off, record_internals=out_dir is not None,
+                 progress=contour_progress(f'ladrc job {job.name}'))
     out: dict[str, Any] = {'job': job.name, 'off': a.off, **result.figures,
                            'wall_s': round(result.wall_s, 2), 'realtime_x': realtime_x(result)}
     if a.compare:
-        other = run(job, a.off + [a.compare])
+        other = run(job, a.off + [a.compare],
+                    progress=contour_progress(f'ladrc job {job.name}, {a.compare} off'))
         out = {'job': job.name, 'feature': a.compare, 'on': result.figures,
                'off': other.figures, 'difference': compare(a.compare, result, other)}
     if out_dir is not None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 import time
-from typing import Any
+from typing import Any, Callable
 
 from ladrc_contract.codes import FollowState, Segment, SubState
 from ladrc_contract.tick import TickInput
@@ -106,10 +106,12 @@ class _Scenario:
 
 
 def run_job(job: Any, controller: Any, *, max_s: float | None = None,
-            record_internals: bool = False) -> JobResult:
+            record_internals: bool = False,
+            progress: Callable[[int, int], None] | None = None) -> JobResult:
     """Run ``job`` (:class:`~.jobfile.Job`) with ``controller``; return its :class:`JobResult`.
 
-    ``record_internals``: keep the controller's status of every tick (for a bag).
+    ``record_internals``: keep the controller's status of every tick (for a bag);
+    ``progress(contours_cut, contours)``: called as each contour is cut to its end.
     """
     h = H_S
     program = job.program()
@@ -154,6 +156,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
                 sheet.tip(c.region, job.tip_rise_mm)
             else:
                 sheet.drop(c.region)
+            if progress is not None:
+                progress(k + 1, len(program.contours))
         z = axis.position_mm
         sensed, true_gap = sheet.under_face(x, y, z)
         cov = sheet.coverage(x, y)
