@@ -23,7 +23,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
 PACKAGES = ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
-PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning')
+PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning',
+                'fleet')
 
 # top-level module -> rosdep key / ROS package name in package.xml
 DEPEND_KEY = {
@@ -36,6 +37,9 @@ DEPEND_KEY = {
     'mcap': 'mcap-ros2-support',  # rosdistro's pip key whose package depends on mcap
     'shapely': 'python3-shapely',
     'ezdxf': 'python3-ezdxf',
+    'dask': 'python3-dask-pip',  # the fleet tools: pip on every path (requirements/stock.txt)
+    'distributed': 'python3-distributed-pip',
+    'pyarrow': 'python3-pyarrow-pip',
     'ladrc_msgs': 'ladrc_msgs',
     'ladrc_contract': 'ladrc_contract',
     'std_msgs': 'std_msgs',

@@ -66,7 +66,7 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
     try:
         # recorder first, so the bag holds the run from the follow node's first ticks
         nodes.start('recorder', 'ladrc_tools', 'recorder', '-p', f'output:={bag}',
-                    '-p', 'reliable:=true')
+                    '-p', 'reliable:=true', '-p', 'machine_id:=cutter-live')
         nodes.start('follow', 'ladrc_follow', 'follow_node', '-p', 'loop:=lockstep')
         # the sim starts stepping once the recorder reads sim/truth and discovery settled
         nodes.start('sim', 'ladrc_sim', 'sim_node', '-p', f'scenario:={SCENARIO}',
@@ -140,6 +140,17 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
     changes = [e for e in rec.events if e.kind == FollowEvent.PARAMETERS]
     assert changes and f'kp: {kp * 1.3}' in changes[-1].text
     assert int(rec.ticks[0]) < changes[-1].tick < int(rec.ticks[-1])
+
+    # The bag says where it comes from: the machine, and the set the run started with (the
+    # parameter change re-published run/parameters; the hash is the first text's)
+    from ladrc_tools.bags.bag import open_bag, read_first_text, read_text_topic
+    from ladrc_tools.bags.provenance import param_hash, read_provenance
+
+    with open_bag(bag) as b:
+        prov = read_provenance(b)
+        first, last = read_first_text(b, 'run/parameters'), read_text_topic(b, 'run/parameters')
+    assert prov.machine_id == 'cutter-live' and prov.fallback == (), prov
+    assert first != last and prov.param_hash == param_hash(first), prov
 
     proc = subprocess.run([str(LADRC), 'replay', str(bag)], capture_output=True, text=True,
                           timeout=300, env=dict(os.environ))

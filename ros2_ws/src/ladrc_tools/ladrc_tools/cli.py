@@ -24,6 +24,7 @@ from .cli_commissioning import (
     _run_identify,
 )
 from .cli_common import EXIT_USAGE, CliError
+from .cli_fleet import _add_fleet, _add_fleet_gen, _run_fleet, _run_fleet_gen
 from .cli_job import _add_job, _run_job
 from .cli_offline import (
     _add_analyze,
@@ -83,6 +84,13 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
     'job': ('run a cutting job headless (sheet in XY, part program from DXF, the simulated '
             'CNC): per-job figures; --compare a CNC-partner feature on and off; -o job.png',
             _add_job, _run_job),
+    'fleet': ("a fleet's bags (folders, globs) on a Dask cluster: one row per bag, machine-day "
+              'and machine (Parquet), machines and days that stand out flagged with the rule, '
+              'parameter-set changes before/after; fleet.md with plots; only new bags are '
+              'computed again', _add_fleet, _run_fleet),
+    'fleet-gen': ('generate a fleet of simulated machines over days (headless bags with '
+                  'machine ids and dates; a few machines degrading; a parameter change)',
+                  _add_fleet_gen, _run_fleet_gen),
     'suite': ('run the scenario library for PID and LADRC variants; comparison table '
               "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
               _add_suite, _run_suite),

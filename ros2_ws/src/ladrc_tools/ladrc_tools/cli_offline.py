@@ -353,6 +353,10 @@ def _run_analyze(a: argparse.Namespace) -> int:
 
 
 # ---- tune ---------------------------------------------------------------------------------
+LARGE_GRID = 2000
+"""``ladrc tune``: a grid of more points runs on a local cluster by default."""
+
+
 def _add_tune(p: argparse.ArgumentParser) -> None:
     p.add_argument('--w0', default='30:150:5',
                    help='observer bandwidths ω0 [rad/s]: a:b:n or a value [30:150:5]')
@@ -365,6 +369,11 @@ def _add_tune(p: argparse.ArgumentParser) -> None:
                    help='comma-separated scenario names [every one the batch loop models]')
     p.add_argument('--params', help='base parameter YAML (default: built-in defaults)')
     p.add_argument('-o', '--output', default='tune', help='output folder [tune]')
+    p.add_argument('--scheduler', help='run the grid in parts on this Dask scheduler '
+                   '(tcp://host:8786); default: on this core, or on a local cluster for a grid '
+                   'of more than 2000 points')
+    p.add_argument('--workers', type=int, help='local cluster: worker processes (default: '
+                   'the cores); given, the local cluster is used whatever the grid')
 
 
 def _run_tune(a: argparse.Namespace) -> int:
@@ -389,9 +398,23 @@ def _run_tune(a: argparse.Namespace) -> int:
             check_batchable(load_scenario(name))
     except (ValueError, ParameterError, ScenarioError, BatchUnsupported) as exc:
         raise CliError(' '.join(str(exc).split())) from None
-    cands = sweep(base, w0s, kps, b0s, names, stderr_progress('scenarios'), td_rs)
+    if a.workers is not None and not 1 <= a.workers <= 256:
+        raise CliError(f'--workers must be 1..256, got {a.workers}')
+    n_points = len(w0s) * len(kps) * len(b0s) * len(td_rs or [base.td_b.r_per_s])
+    if a.scheduler or a.workers or n_points > LARGE_GRID:
+        from .fleet.engine import client
+        from .offline.tune import sweep_on
+
+        try:
+            with client(a.scheduler, a.workers) as c:
+                cands = sweep_on(c, base, w0s, kps, b0s, names, stderr_progress('grid parts'),
+                                 td_rs)
+        except OSError as exc:  # the scheduler unreachable
+            raise CliError(' '.join(str(exc).split())) from None
+    else:
+        cands = sweep(base, w0s, kps, b0s, names, stderr_progress('scenarios'), td_rs)
     try:
-        out, summary = write_tune(cands, names, out)
+        out, summary = write_tune(cands, names, out, base)
     except ValueError as exc:
         raise CliError(' '.join(str(exc).split())) from None
     c = summary['chosen']

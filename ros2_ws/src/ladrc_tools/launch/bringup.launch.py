@@ -30,6 +30,8 @@ def _nodes(context):
     for spec in specs:
         if spec.name == 'ladrc_follow':
             spec.parameters['hardware_id'] = arg('hardware_id')
+        elif spec.name == 'ladrc_recorder':  # the bag's machine id (bags/provenance.py)
+            spec.parameters['machine_id'] = arg('hardware_id')
     nodes = launch_nodes(specs)
     return list(nodes.values()) + stop_in_order(nodes, first='ladrc_sim')
 

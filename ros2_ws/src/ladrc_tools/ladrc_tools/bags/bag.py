@@ -10,11 +10,11 @@ public names, so ``from ladrc_tools.bags.bag import open_bag`` keeps working.
 from __future__ import annotations
 
 from .errors import BagError
-from .reader import Bag, count_lost, open_bag, read_text_topic, seq_of
+from .reader import Bag, count_lost, open_bag, read_first_text, read_text_topic, seq_of
 from .rows import RowPacker, stamp_parts
 from .run_bag import write_run_bag
 from .writer import BAG_VERSION, STORAGES, BagWriter, fq, rosbags_qos, storage_of, string_msg
 
 __all__ = ['BAG_VERSION', 'STORAGES', 'Bag', 'BagError', 'BagWriter', 'RowPacker', 'count_lost',
-           'fq', 'open_bag', 'read_text_topic', 'rosbags_qos', 'seq_of', 'stamp_parts',
-           'storage_of', 'string_msg', 'write_run_bag']
+           'fq', 'open_bag', 'read_first_text', 'read_text_topic', 'rosbags_qos', 'seq_of',
+           'stamp_parts', 'storage_of', 'string_msg', 'write_run_bag']

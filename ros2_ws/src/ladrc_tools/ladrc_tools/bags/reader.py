@@ -462,3 +462,16 @@ def read_text_topic(bag: Bag, topic: str) -> str | None:
     for _, msg in bag.messages(topic):
         text = msg.data
     return text
+
+
+def read_first_text(bag: Bag, topic: str) -> str | None:
+    """Return the first std_msgs/String ``data`` on ``topic``; None when absent.
+
+    ``run/parameters``: the set the run started with (the follow node re-publishes the latched
+    text on every change).
+    """
+    if not bag.has(topic):
+        return None
+    for _, msg in bag.messages(topic):
+        return str(msg.data)
+    return None

@@ -20,6 +20,7 @@ from ladrc_contract.events import COMMAND_KIND, EventFields, encode
 import numpy as np
 
 from .errors import BagError
+from .provenance import PARAMS_KEY, VERSION_KEY, param_hash, software_version
 from .rows import RowPacker
 from .typestore import ladrc_typestore
 from .writer import BagWriter, string_msg
@@ -249,7 +250,8 @@ def _event_rows(s: _Series, store: Any, params_yaml: str) -> list[tuple[int, byt
 
 def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
                   scenario_yaml: str = '', *, storage: str = 'mcap',
-                  controller: str = '') -> Path:
+                  controller: str = '', provenance: Mapping[str, str] | None = None,
+                  truth: bool = True) -> Path:
     """Write a headless ``ladrc_sim.headless.runner.RunResult`` as a bag with a live run's layout.
 
     One message per tick on the 2 kHz topics (capacitive height and feedback only on ticks
@@ -260,7 +262,10 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     names, else from the run's series (floats the run does not know are NaN). The command's
     ``enable`` is ``internals['command_enable']`` when the controller reports it (the
     excitation player), else derived from the follow state. Written into a temporary folder
-    and renamed, so ``path`` appears only complete.
+    and renamed, so ``path`` appears only complete. ``custom_data`` holds the software version
+    and the parameter set's hash (:mod:`.provenance`), plus ``provenance`` (a generated fleet:
+    machine id and wall-clock start). ``truth=False`` leaves ``sim/truth`` out (a fleet's bags:
+    a real machine has none).
     """
     path = Path(path)
     if path.exists():
@@ -270,7 +275,8 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
     cap_rows, fb_rows = _sample_rows(s, result, store)
     rows = {'axis/capacitive_height': cap_rows, 'axis/feedback': fb_rows,
             'axis/velocity_command': _command_rows(s, store),
-            'follow/status': _status_rows(s, store), 'sim/truth': _truth_rows(s, result, store)}
+            'follow/status': _status_rows(s, store),
+            'sim/truth': _truth_rows(s, result, store) if truth else None}
     events = _event_rows(s, store, params_yaml)
     tmp = path.with_name(f'.{path.name}.partial')
     if tmp.exists():
@@ -279,6 +285,10 @@ def write_run_bag(result: Any, path: str | Path, params_yaml: str = '',
               'ladrc.scenario': str(getattr(result.scenario, 'name', ''))}
     if controller:
         custom['ladrc.controller'] = controller
+    custom[VERSION_KEY] = software_version()
+    if params_yaml:
+        custom[PARAMS_KEY] = param_hash(params_yaml)
+    custom.update(provenance or {})
     # no flush or metadata rewrite on the wall clock: the bag is renamed into place only when
     # complete, and chunks cut by size alone make the same run the same bytes however fast
     # the machine writes (a 0.25 s flush cut a loaded run's chunks elsewhere)
@@ -301,7 +311,8 @@ def _write_ticks(writer: BagWriter, s: _Series, rows: dict[str, list[bytes]],
     for topic in ('axis/capacitive_height', 'axis/feedback', 'axis/velocity_command',
                   'follow/status', 'follow/events', 'sim/truth', 'run/parameters',
                   'run/scenario'):
-        writer.add_topic(topic)
+        if rows.get(topic, True) is not None:
+            writer.add_topic(topic)
     for topic, text in (('run/parameters', params_yaml), ('run/scenario', scenario_yaml)):
         writer.write(topic, 0, string_msg(text, store))
     ns = np.round(s.t * 1e9).astype(np.int64).tolist()
@@ -317,7 +328,8 @@ def _write_ticks(writer: BagWriter, s: _Series, rows: dict[str, list[bytes]],
             k += 1
         if gap_fresh[i]:
             w('axis/capacitive_height', ts, cap[i])
-        w('sim/truth', ts, truth[i])
+        if truth is not None:
+            w('sim/truth', ts, truth[i])
         if enc_fresh[i]:
             w('axis/feedback', ts, fb[i])
         w('follow/status', ts, status[i])

@@ -68,7 +68,8 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
     specs = []
     if bag:
         rec: dict[str, object] = {'output': bag, 'storage': storage,
-                                  'scenario': job or scenario}
+                                  'scenario': job or scenario,
+                                  'machine_id': LAUNCH_ARGUMENTS['hardware_id'][0]}
         if lockstep:
             rec['reliable'] = True
         specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder', parameters=rec))
@@ -105,7 +106,8 @@ def axis_node_specs(params_file: str | None = None, bag: str | None = None,
     specs = []
     if bag:
         specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder',
-                              parameters={'output': bag, 'storage': storage}))
+                              parameters={'output': bag, 'storage': storage,
+                                          'machine_id': hardware_id}))
     specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',
                           parameters={'loop': loop, 'hardware_id': hardware_id},
                           params_file=params_file or default_params_file()))

@@ -22,7 +22,9 @@ period, the most a kill loses besides the queue), ``compression`` (mcap chunks: 
 ``lz4`` | ``none``), ``queue_max`` (messages), ``stop_grace_s`` (keeps recording this long
 after SIGINT/SIGTERM, for the other nodes' last messages when all are interrupted at once),
 ``topics`` (the contract topics to record; empty = all; bench/loop_timing.py records two),
-``poll_s`` (how often the readers are emptied),
+``poll_s`` (how often the readers are emptied), ``machine_id`` (the bag's
+``ladrc.machine_id``: bring-up passes the follow node's ``hardware_id``; with the wall-clock
+start, the software version and the hash of the first ``run/parameters``, bags/provenance.py),
 ``reliable`` (subscribe the 2 kHz topics RELIABLE: lock step, whose writers are reliable, so a
 recorder that falls behind is repaired rather than losing messages; docs/follow-node.md).
 Topics are stored under their fully qualified names (the node's namespace applies).
@@ -38,6 +40,7 @@ from collections import deque
 import json
 from pathlib import Path
 import signal
+import struct
 import sys
 import threading
 import time
@@ -45,9 +48,20 @@ from typing import Any
 
 from ladrc_contract import qos
 from ladrc_contract.qos import TOPIC_QOS, to_rclpy
-from ladrc_contract.topics import SEQ_FIELD, TOPIC_TYPES
+from ladrc_contract.topics import PARAMETERS_TOPIC, SEQ_FIELD, TOPIC_TYPES
 
 from ..bags.bag import BagError, BagWriter, seq_of, storage_of
+from ..bags.provenance import PARAMS_KEY, param_hash, provenance_data
+
+
+def string_of_cdr(data: bytes) -> str:
+    """Return the ``data`` of a serialized std_msgs/String ('' when it is not one)."""
+    if len(data) < 8:
+        return ''
+    order = '<' if data[1] & 1 else '>'  # the encapsulation: CDR_LE / CDR_BE
+    (n,) = struct.unpack_from(order + 'I', data, 4)
+    raw = data[8:8 + n]
+    return raw[:-1].decode('utf-8', 'replace') if len(raw) == n and n else ''
 
 
 def _qos_profile(topic: str, reliable: bool = False) -> Any:
@@ -93,14 +107,16 @@ class Recorder:
 
     def __init__(self, path: str | Path, storage: str = 'mcap', split_s: float = 0.0,
                  flush_s: float = 0.25, compression: str = 'zstd', queue_max: int = 200_000,
-                 topics: dict[str, str] | None = None) -> None:
+                 topics: dict[str, str] | None = None, machine_id: str = '') -> None:
         if storage_of(storage) == 'sqlite3' and not split_s > 0:
             split_s = 1.0  # rosbags' sqlite3 commits on close only: complete 1 s files
         if not (isinstance(queue_max, int) and queue_max >= 1):
             raise BagError(f'queue_max must be an integer >= 1, got {queue_max!r}')
         self.writer = BagWriter(path, storage=storage, split_s=split_s if split_s > 0 else None,
                                 flush_s=flush_s, compression=compression,
-                                custom_data={'ladrc.source': 'recorder'})
+                                custom_data={'ladrc.source': 'recorder',
+                                             **provenance_data(machine_id)})
+        self._params_hashed = False  # ladrc.param_hash: from the first run/parameters
         self.names = topics or {t: '/' + t.lstrip('/') for t in TOPIC_TYPES}
         for topic, name in self.names.items():
             self.writer.add_topic(name, TOPIC_TYPES[topic])
@@ -132,6 +148,11 @@ class Recorder:
         done = 0
         while q:
             topic, data, ts = q.popleft()
+            if topic == PARAMETERS_TOPIC and not self._params_hashed:
+                self._params_hashed = True
+                text = string_of_cdr(data)
+                if text:
+                    self.writer.custom_data[PARAMS_KEY] = param_hash(text)
             c = counters.get(topic)
             if c is not None:
                 try:
@@ -245,6 +266,7 @@ def main(args: list[str] | None = None) -> int:
         compression = node.declare_parameter('compression', 'zstd').value
         queue_max = int(node.declare_parameter('queue_max', 200_000).value)
         grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
+        machine_id = str(node.declare_parameter('machine_id', '').value)
         reliable = bool(node.declare_parameter('reliable', False).value)
         poll_s = float(node.declare_parameter('poll_s', 0.005).value)
         only = [t.strip('/') for t in node.declare_parameter('topics', ['']).value if t]
@@ -261,7 +283,8 @@ def main(args: list[str] | None = None) -> int:
                    for topic, msgtype in wanted.items()}
         try:
             recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
-                                topics={t: r.topic_name for t, r in readers.items()})
+                                topics={t: r.topic_name for t, r in readers.items()},
+                                machine_id=machine_id)
         except (BagError, ValueError, TypeError) as exc:
             print(f'recorder: {exc}', file=sys.stderr)
             return 2

@@ -27,7 +27,7 @@ from ladrc_follow.control.params import (
 import numpy as np
 import yaml
 
-from ..bags.bag import Bag, BagError, open_bag
+from ..bags.bag import Bag, BagError, open_bag, read_first_text
 
 # ladrc_msgs/FollowEvent kinds -> follow command names (the contract's codec), and the sets
 KIND_NAMES = {**{int(k): name for name, k in COMMAND_KIND.items()},
@@ -180,15 +180,6 @@ def _read_events(bag: Bag) -> list[RecordedEvent]:
     return out
 
 
-def _first_text(bag: Bag, topic: str) -> str | None:
-    # the first set: the node re-publishes run/parameters (latched) on every change
-    if not bag.has(topic):
-        return None
-    for _, msg in bag.messages(topic):
-        return str(msg.data)
-    return None
-
-
 CMD_FIELDS = ('seq', 'velocity_mm_s', 'enable')  # + timestamp_ns (bag time), always read
 
 
@@ -311,7 +302,7 @@ def open_recording(path: str | Path) -> Recording:
             notes.append('no axis/velocity_command topic: compared with '
                          'follow/status.velocity_mm_s')
         events = _read_events(bag)
-        params_text = _first_text(bag, 'run/parameters')
+        params_text = read_first_text(bag, 'run/parameters')
         custom = bag.custom_data
         bag_path = bag.path
         n_ticks = bag.count('follow/status')

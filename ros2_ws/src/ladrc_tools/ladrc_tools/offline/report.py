@@ -128,6 +128,7 @@ class _StatusPass:
         self.bag = bag
         self.v_max = v_max
         self.truth = truth
+        self.extra: Any = None  # analyse(extra=...): another accumulator on the same pass
         self.n_status = bag.count('follow/status')
         self.timing = {k: Quantiles() for k in TIMING}
         self.last_seq: dict[str, int] = {}
@@ -255,6 +256,8 @@ class _StatusPass:
                     self.count_lost(topic, cols)
             if self.truth is not None and 'sim/truth' in part:
                 self.truth.add(part['sim/truth'])
+            if self.extra is not None:
+                self.extra.add(part)
             st = part.get('follow/status')
             if st is not None:
                 for c in REPORT_FIELDS + ('timestamp_ns',):
@@ -275,8 +278,12 @@ def _recording(bag: Bag) -> dict[str, Any] | None:
     return None
 
 
-def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def analyse(bag: Bag, progress: bool = False, extra: Any = None
+            ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``).
+
+    ``extra``: another accumulator riding the same pass (the fleet's sensor check): its
+    ``fields`` (topic -> field names) are read too and each slice goes to its ``add(part)``.
 
     ONE pass over the bag in time slices (:meth:`Bag.stream`); memory is that of a slice plus
     the accumulators (metrics, timing quantiles, plot envelope), whatever the bag's length.
@@ -298,6 +305,10 @@ def analyse(bag: Bag, progress: bool = False) -> tuple[dict[str, Any], dict[str,
     wanted['sim/truth'] = ['stamp_s', 'true_gap_mm', 'collision', 'seq']
     truth = _TruthJoin() if bag.count('sim/truth') > 1 else None
     run = _StatusPass(bag, v_max, truth)
+    if extra is not None:
+        run.extra = extra
+        for topic, fields in extra.fields.items():
+            wanted[topic] = tuple(dict.fromkeys((*wanted.get(topic, ()), *fields)))
     run.read(wanted, progress)
     if not run.acc or run.n_done < 2:
         raise BagError(f'{bag.path}: follow/status holds {run.n_done} readable message(s); '

@@ -60,6 +60,12 @@ class Candidate:
     scores: dict[str, float] = field(default_factory=dict)  # OBJECTIVES that were measured
     edge_min_gap_mm: float = math.nan
     front: bool = False
+    passed: bool = False  # validated, gated in, ran without contact (``params`` may be dropped)
+
+    @property
+    def point(self) -> tuple[float, float, float, float]:
+        """Return the grid point (ω0, kp, b0, TD R)."""
+        return (self.w0_rad_s, self.kp, self.b0, self.td_r_per_s)
 
     @property
     def error_rms_mm(self) -> float:
@@ -100,22 +106,45 @@ def _chatter(u: np.ndarray, h_s: float) -> np.ndarray:
     return np.sqrt(2.0 * np.sum(np.abs(hi) ** 2, axis=0)) / n
 
 
-def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
-          b0s: Sequence[float], scenarios: Sequence[Any],
-          progress: Callable[[int, int], None] | None = None,
-          td_rs: Sequence[float] | None = None) -> list[Candidate]:
-    """Build, gate and run the grid; mark the Pareto front.
+Point = tuple[float, float, float, float]
+"""One grid point: ω0 [rad/s], kp [1/s], b0, TD R [1/s]."""
+CHUNK_MAX = 2000
+"""Most grid points per task on the engine (:func:`sweep_on`): a task's batch holds this many
+rows (about 1.5 GB with every library scenario); a grid is cut into two parts per worker when
+that is fewer, as each part pays the batch loop's cost per tick once (5 120 points in parts of
+500: 126 s on two workers against 147 s in one batch on one core)."""
 
-    ``td_rs``: speed factors R of the second TD (``td_b.r_per_s``; default: the base's).
+
+def grid(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
+         b0s: Sequence[float], td_rs: Sequence[float] | None = None) -> list[Point]:
+    """Return the grid's points in sweep order (``td_rs`` default: the base's TD R)."""
+    return [tuple(map(float, p)) for p in itertools.product(  # type: ignore[misc]
+        w0s, kps, b0s, td_rs or [base.td_b.r_per_s])]
+
+
+def point_params(base: ControllerParams, point: Point) -> ControllerParams:
+    """Return the parameter set of one grid point over ``base``."""
+    w0, kp, b0, r = point
+    return replace(base, eso=replace(base.eso, gains='bandwidth', w0_rad_s=w0, b0=b0),
+                   law=replace(base.law, gains='explicit', kp=kp),
+                   td_b=replace(base.td_b, r_per_s=r),
+                   follow=replace(base.follow, controller='ladrc'))
+
+
+def evaluate(base: ControllerParams, points: Sequence[Point], scenarios: Sequence[Any],
+             progress: Callable[[int, int], None] | None = None,
+             keep_params: bool = True) -> list[Candidate]:
+    """Validate, gate and run ``points`` in one batch; return their candidates (no front yet).
+
+    Every point's scores depend on its own row of the batch only, so any split of a grid
+    into parts gives the same candidates (:func:`sweep_on`). ``keep_params=False``: the sets
+    are not kept (``passed`` says which ran; :func:`point_params` rebuilds one).
     """
     cands = []
-    for w0, kp, b0, r in itertools.product(w0s, kps, b0s, td_rs or [base.td_b.r_per_s]):
-        c = Candidate(w0, kp, b0, r, None)
+    for point in points:
+        c = Candidate(*point, None)
         try:
-            p = replace(base, eso=replace(base.eso, gains='bandwidth', w0_rad_s=w0, b0=b0),
-                        law=replace(base.law, gains='explicit', kp=kp),
-                        td_b=replace(base.td_b, r_per_s=r),
-                        follow=replace(base.follow, controller='ladrc'))
+            p = point_params(base, point)
             check(p)
             reasons = stability_reasons(p)
         except (ParameterError, ValueError) as exc:
@@ -125,8 +154,9 @@ def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
                 c.rejected = reasons[0]
             else:
                 c.params = p
+                c.passed = True
         cands.append(c)
-    live = [c for c in cands if c.params is not None]
+    live = [c for c in cands if c.passed]
     if not live:
         return cands
     batch = LADRC.batch([c.params for c in live])
@@ -159,11 +189,72 @@ def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
         c.scores = {key: float(sums[key][j] / counts[key]) for key in OBJECTIVES if key in sums}
         c.edge_min_gap_mm = float(edge_min[j]) if np.isfinite(edge_min[j]) else math.nan
         if contact[j]:
-            c.rejected, c.params = contact[j], None
-    ran = [c for c in live if c.params is not None]
-    for c in ran:
-        c.front = not any(_dominates(o, c) for o in ran)
+            c.rejected, c.params, c.passed = contact[j], None, False
+        elif not keep_params:
+            c.params = None
     return cands
+
+
+def mark_front(cands: list[Candidate]) -> list[Candidate]:
+    """Mark the Pareto front of the candidates that ran (no other beats them in every score).
+
+    In lexicographic order of the scores a dominating point comes before the point it
+    dominates, and a point dominated by one off the front is dominated by one on it: so each
+    point is checked against the front found so far only (the front stays small), not against
+    every other point (10^10 pairs for 10^5 sets).
+    """
+    ran = [c for c in cands if c.passed]
+    if not ran:
+        return cands
+    keys = list(ran[0].scores)
+    order = sorted(range(len(ran)), key=lambda i: [ran[i].scores[k] for k in keys])
+    front = np.zeros((0, len(keys)))
+    for i in order:
+        s = np.array([ran[i].scores[k] for k in keys])
+        dominated = np.any(np.all(front <= s, axis=1) & np.any(front < s, axis=1))
+        ran[i].front = not dominated
+        if not dominated:
+            front = np.vstack((front, s))
+    return cands
+
+
+def sweep(base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
+          b0s: Sequence[float], scenarios: Sequence[Any],
+          progress: Callable[[int, int], None] | None = None,
+          td_rs: Sequence[float] | None = None) -> list[Candidate]:
+    """Build, gate and run the grid in one batch on this core; mark the Pareto front.
+
+    ``td_rs``: speed factors R of the second TD (``td_b.r_per_s``; default: the base's).
+    """
+    return mark_front(evaluate(base, grid(base, w0s, kps, b0s, td_rs), scenarios, progress))
+
+
+def _evaluate_part(points: list[Point], base: ControllerParams, scenarios: list[Any]
+                   ) -> list[Candidate]:
+    return evaluate(base, points, scenarios, keep_params=False)
+
+
+def sweep_on(client: Any, base: ControllerParams, w0s: Sequence[float], kps: Sequence[float],
+             b0s: Sequence[float], scenarios: Sequence[Any],
+             progress: Callable[[int, int], None] | None = None,
+             td_rs: Sequence[float] | None = None, chunk: int | None = None
+             ) -> list[Candidate]:
+    """Run the sweep of :func:`sweep` in parts of ``chunk`` points on a Dask cluster.
+
+    ``chunk`` default: two parts per worker, at most :data:`CHUNK_MAX` points each. Each task
+    holds one part's batch (memory bounded by ``chunk``, whatever the grid's size);
+    the sets are not sent back (``point_params`` rebuilds the chosen one); the front is marked
+    over all parts at the end, so it is the one :func:`sweep` marks.
+    """
+    from ..fleet.engine import in_order
+
+    points = grid(base, w0s, kps, b0s, td_rs)
+    if chunk is None:
+        workers = max(1, len(client.scheduler_info().get('workers', {})))
+        chunk = min(CHUNK_MAX, max(1, math.ceil(len(points) / (2 * workers))))
+    parts = [points[i:i + chunk] for i in range(0, len(points), chunk)]
+    done = in_order(client, _evaluate_part, parts, base, list(scenarios), progress=progress)
+    return mark_front([c for part in done for c in part])
 
 
 def scenario_kind(name: str) -> str:
@@ -198,7 +289,7 @@ def scores(cands: Sequence[Candidate]) -> dict[int, float]:
         return {}
     least = {k: min(c.scores[k] for c in front) or 1e-12 for k in front[0].scores}
     return {i: sum(c.scores[k] / least[k] for k in least)
-            for i, c in enumerate(cands) if c.params is not None}
+            for i, c in enumerate(cands) if c.passed}
 
 
 def choose(cands: Sequence[Candidate]) -> Candidate | None:
@@ -213,7 +304,7 @@ def _plot(cands: Sequence[Candidate], chosen: Candidate, path: Path) -> None:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    live = [c for c in cands if c.params is not None]
+    live = [c for c in cands if c.passed]
     fig, ax = plt.subplots(figsize=(8, 6))
     ax.scatter([c.chatter_mm_s for c in live], [c.error_rms_mm for c in live], s=12,
                color='0.6', label='gated in')
@@ -231,9 +322,13 @@ def _plot(cands: Sequence[Candidate], chosen: Candidate, path: Path) -> None:
     plt.close(fig)
 
 
-def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path
-               ) -> tuple[Path, dict[str, Any]]:
-    """Write the chosen set and the tables; return the folder and the summary."""
+def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path,
+               base: ControllerParams | None = None) -> tuple[Path, dict[str, Any]]:
+    """Write the chosen set and the tables; return the folder and the summary.
+
+    ``base``: the sweep's base set, to rebuild the chosen set when the sweep dropped the sets
+    (:func:`sweep_on`).
+    """
     chosen = choose(cands)
     if chosen is None:
         raise ValueError('no grid point passed the validation and the stability gate '
@@ -243,7 +338,7 @@ def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path
              'rejected': c.rejected or None, **{k: c.scores.get(k) for k in keys},
              'error_rms_mm': c.error_rms_mm, 'chatter_mm_s': c.chatter_mm_s,
              'edge_min_gap_mm': c.edge_min_gap_mm, 'front': c.front} for c in cands]
-    live = [c for c in cands if c.params is not None]
+    live = [c for c in cands if c.passed]
     summary = {'grid': len(cands), 'gated_in': len(live), 'front': sum(c.front for c in cands),
                'scenarios': list(scenarios), 'objectives': keys,
                'chosen': {'w0_rad_s': chosen.w0_rad_s, 'kp': chosen.kp, 'b0': chosen.b0,
@@ -278,7 +373,9 @@ def write_tune(cands: Sequence[Candidate], scenarios: Sequence[str], out: Path
                      + ''.join(f'{c.scores.get(k, math.nan):.4g} | ' for k in keys)
                      + f'{"yes" if c.front else ""} | {c.rejected or "passes"} |')
     with building(out) as tmp:
-        (tmp / 'tuned.yaml').write_text(dump_params(chosen.params), encoding='utf-8')
+        chosen_params = chosen.params if chosen.params is not None else point_params(
+            base or ControllerParams(), chosen.point)
+        (tmp / 'tuned.yaml').write_text(dump_params(chosen_params), encoding='utf-8')
         (tmp / 'tune.json').write_text(json.dumps(strict_json({**summary, 'grid_points': rows}),
                                                   indent=1) + '\n', encoding='utf-8')
         (tmp / 'tune.md').write_text('\n'.join(lines + ['', '![pareto](pareto.png)', '']),

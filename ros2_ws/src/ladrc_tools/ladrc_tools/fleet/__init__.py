@@ -1,0 +1,1 @@
+"""Fleet tools: many bags of many machines, on a distributed engine (docs/fleet.md)."""
