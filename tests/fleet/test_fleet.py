@@ -253,3 +253,54 @@ def test_the_fleet_shows_its_progress_on_a_terminal_and_nothing_piped(monkeypatc
             show(done, 3)
         assert stream.getvalue() == ('\rladrc fleet: 1/3 bags\rladrc fleet: 2/3 bags'
                                      '\rladrc fleet: 3/3 bags\n' if shown else '')
+
+
+def test_an_existing_cluster_by_address_gives_the_rows_of_the_local_one(fleet, result, tmp_path):
+    """A scheduler and a worker started apart (as on a cluster); killed by PID at the end."""
+    import os
+    import signal
+    import time
+
+    from ladrc_tools.fleet.engine import client
+
+    root, _ = fleet
+    tree = tmp_path / 'tree'
+    for bag in sorted((root / 'cutter-03').iterdir()):
+        shutil.copytree(bag, tree / bag.name)
+    sched_file = tmp_path / 'scheduler.json'
+    procs = []
+    try:
+        procs.append(subprocess.Popen(
+            [sys.executable, '-m', 'distributed.cli.dask_scheduler', '--scheduler-file',
+             str(sched_file), '--host', '127.0.0.1', '--port', '0', '--no-dashboard'],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
+        deadline = time.monotonic() + 60
+        while not sched_file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())['address']
+        procs.append(subprocess.Popen(
+            [sys.executable, '-m', 'distributed.cli.dask_worker', address, '--nworkers', '1',
+             '--nthreads', '1', '--no-dashboard'],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
+        with client(address) as c:
+            c.wait_for_workers(1, timeout=60)
+        remote = run_fleet([str(tree)], tmp_path / 'out', scheduler=address, use_cache=False)
+    finally:
+        for p in procs:  # each with its children (the worker's nanny starts the worker)
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p.wait(timeout=30)
+    _, local = result
+    assert remote.summary['workers'] == 1 and remote.summary['ok'] == 3
+    by_key = {r['key']: r for r in local.rows}
+    skip = {'bag', 'task_s'}
+    for row in remote.rows:
+        assert {k: v for k, v in row.items() if k not in skip} == {
+            k: v for k, v in by_key[row['key']].items() if k not in skip}
+    bad = subprocess.run([sys.executable, '-m', 'ladrc_tools.cli', 'fleet', str(tree), '-o',
+                          str(tmp_path / 'out2'), '--scheduler', 'tcp://127.0.0.1:9'],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.count('\n') == 1, bad.stderr
+    assert 'cannot reach the scheduler' in bad.stderr and 'Traceback' not in bad.stderr

@@ -42,6 +42,7 @@ def progress_line(label: str) -> Callable[[int, int], None]:
 
 
 def _run_fleet(a: argparse.Namespace) -> int:
+    from .fleet.engine import EngineError
     from .fleet.run import run_fleet
 
     out = Path(a.output)
@@ -56,7 +57,7 @@ def _run_fleet(a: argparse.Namespace) -> int:
         result = run_fleet(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                            use_cache=not a.no_cache, settle_s=a.settle_s,
                            progress=progress_line('ladrc fleet'))
-    except OSError as exc:  # the scheduler unreachable, the output not writable
+    except (OSError, EngineError) as exc:  # the cluster, the output not writable
         raise CliError(' '.join(str(exc).split())) from None
     print(json.dumps(result.summary))
     return 1 if result.summary['failed'] else 0
@@ -81,7 +82,7 @@ def _add_fleet_gen(p: argparse.ArgumentParser) -> None:
 
 
 def _run_fleet_gen(a: argparse.Namespace) -> int:
-    from .fleet.engine import client, in_order
+    from .fleet.engine import EngineError, client, in_order
     from .fleet.generate import CLI_FIELDS, FleetSpec, plan, write_bag, write_truth
 
     out = Path(a.output)
@@ -96,9 +97,12 @@ def _run_fleet_gen(a: argparse.Namespace) -> int:
     fleet = plan(spec)
     tmp = out.with_name(f'.{out.name}.partial')
     tmp.mkdir(parents=True, exist_ok=True)
-    with client(a.scheduler, a.workers) as c:
-        paths: list[Any] = in_order(c, write_bag, fleet.bags, str(tmp),
-                                    progress=progress_line('ladrc fleet-gen'))
+    try:
+        with client(a.scheduler, a.workers) as c:
+            paths: list[Any] = in_order(c, write_bag, fleet.bags, str(tmp),
+                                        progress=progress_line('ladrc fleet-gen'))
+    except EngineError as exc:  # what was written stays in the .partial folder: a re-run
+        raise CliError(f'{exc} (the bags written so far are in {tmp})') from None
     write_truth(fleet, tmp)
     tmp.rename(out)
     print(json.dumps({'out': str(out), 'bags': len(paths), 'machines': spec.machines,

@@ -402,15 +402,15 @@ def _run_tune(a: argparse.Namespace) -> int:
         raise CliError(f'--workers must be 1..256, got {a.workers}')
     n_points = len(w0s) * len(kps) * len(b0s) * len(td_rs or [base.td_b.r_per_s])
     if a.scheduler or a.workers or n_points > LARGE_GRID:
-        from .fleet.engine import client
+        from .fleet.engine import EngineError, client
         from .offline.tune import sweep_on
 
         try:
             with client(a.scheduler, a.workers) as c:
                 cands = sweep_on(c, base, w0s, kps, b0s, names, stderr_progress('grid parts'),
                                  td_rs)
-        except OSError as exc:  # the scheduler unreachable
-            raise CliError(' '.join(str(exc).split())) from None
+        except EngineError as exc:  # the cluster: unreachable, another environment
+            raise CliError(str(exc)) from None
     else:
         cands = sweep(base, w0s, kps, b0s, names, stderr_progress('scenarios'), td_rs)
     try:
