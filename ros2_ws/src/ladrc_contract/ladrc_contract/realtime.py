@@ -4,7 +4,8 @@
 0 = the normal scheduler; timer slack 1 ns for every thread either way, see
 :func:`apply_realtime`),
 ``cpu_affinity`` (CPUs the process may run on; empty = all) and ``lock_memory`` (``mlockall``:
-no page fault on the tick path). Each setting that the system refuses (no CAP_SYS_NICE, an
+no page fault on the tick path), and always: no transparent huge pages for numpy's arrays
+(:func:`no_huge_pages`). Each setting that the system refuses (no CAP_SYS_NICE, an
 RLIMIT_RTPRIO of 0, a missing CPU) is reported as a warning and the loop runs without it: a
 controller that cannot get real-time priority still runs, and says so.
 
@@ -52,11 +53,39 @@ def _no_timer_slack(tid: int) -> None:
         f.write('1')
 
 
+def no_huge_pages() -> bool:
+    """Stop numpy from asking for transparent huge pages; return whether it could be set.
+
+    numpy advises the kernel to back every array of 4 MB or more with huge pages
+    (``madvise(MADV_HUGEPAGE)``), and with the kernel's default ``defrag`` setting (``madvise``)
+    a page fault in such an array compacts memory on the spot until a 2 MB page is free. A job's
+    sheet raster is such an array: the sim node's loop stalled for 7-30 ms at a time, ten
+    seconds into a free-running job, the follow node faulted on stale input and the job stopped
+    (2026-12-04, ``bringup --job plate_holes``: 4 runs of 4 with ``lock_memory``; with numpy's
+    advice off, the job ran to its end). A loop process does not need huge pages: ordinary
+    pages, locked or not, never stall on compaction. numpy's own switch (read from
+    ``NUMPY_MADVISE_HUGEPAGE`` when numpy is imported, which is before any node's main runs).
+    """
+    import numpy as np
+
+    core = getattr(np, '_core', None) or getattr(np, 'core', None)  # numpy 2.x / 1.26
+    switch = getattr(getattr(core, 'multiarray', None), '_set_madvise_hugepage', None)
+    if switch is None:
+        return False
+    switch(False)
+    return True
+
+
 def apply_realtime(thread_priority: int, cpu_affinity: list[int] | tuple[int, ...],
                    lock_memory: bool) -> tuple[list[str], list[str]]:
     """Apply the settings to the calling thread/process; return ``(applied, warnings)``."""
     applied: list[str] = []
     warnings: list[str] = []
+    if no_huge_pages():
+        applied.append('no huge pages for arrays')
+    else:
+        warnings.append('numpy has no switch for huge pages here: a large array may stall the '
+                        'loop on memory compaction (set NUMPY_MADVISE_HUGEPAGE=0)')
     # Timer slack: Linux lets a sleep or timed wait of a normal-priority thread end up to
     # 50 us late (the default slack), so that wake-ups can be merged; a 0.5 ms loop then
     # ticks late by that and a lock-step round trip (four waits) took 0.2 ms longer. SCHED_FIFO
