@@ -10,7 +10,11 @@ check: tests/ros/test_lockstep.py). The bags go to a temporary folder and are de
 Must hold (issues 23, 24): every job runs to its end; 0 contacts except the declared tipping
 part's (which ends in the retract and a feed hold); ``min_gap_over_target_cutting`` >= 0.7.
 
+``--separate-cnc``: the CNC node plays the CNC (three processes; the headless run then is
+``ladrc job --separate-cnc``, and in lock step equal to it).
+
 Run: scripts/in-env python bench/live_jobs.py [--jobs plate_holes tipping_pair] [--lockstep]
+     [--separate-cnc]
 The last line of output is one JSON object.
 """
 
@@ -37,11 +41,12 @@ FIGURES = ('finished', 'job_time_s', 'contacts', 'faults', 'pierces',
 BAR = 0.7
 
 
-def live(name: str, folder: Path, lockstep: bool) -> dict:
+def live(name: str, folder: Path, lockstep: bool, separate: bool = False) -> dict:
     """Run one job live with bringup; return its figures (bringup's last line)."""
     cmd = ['bringup', '--job', name, '--bag', str(folder / f'{name}.bag'),
            '--logs', str(folder / f'{name}.logs'), '--domain-id', str(random.randint(120, 200)),
-           '--timeout', '900'] + (['--lockstep', '--unpaced'] if lockstep else [])
+           '--timeout', '900'] + (['--lockstep', '--unpaced'] if lockstep else []) + (
+               ['--separate-cnc'] if separate else [])
     res = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ),
                          check=False)
     lines = res.stdout.strip().splitlines()
@@ -68,13 +73,15 @@ def main() -> int:
     ap.add_argument('--jobs', nargs='+', default=list(shipped_jobs()))
     ap.add_argument('--lockstep', action='store_true',
                     help='lock step, unpaced (deterministic: equal to headless)')
+    ap.add_argument('--separate-cnc', action='store_true',
+                    help='the CNC node plays the CNC (bringup --separate-cnc)')
     a = ap.parse_args()
     rows = {}
     with tempfile.TemporaryDirectory(prefix='live-jobs-') as tmp:
         for name in a.jobs:
             job = find_job(name)
-            head = run_headless(job, []).figures
-            got = live(name, Path(tmp), a.lockstep)
+            head = run_headless(job, [], separate_cnc=a.separate_cnc).figures
+            got = live(name, Path(tmp), a.lockstep, a.separate_cnc)
             row = {'live': {k: got.get(k) for k in FIGURES + ('realtime_x',)},
                    'headless': {k: head.get(k) for k in FIGURES},
                    'declared_tipping': bool(job.tip_parts)}
@@ -82,7 +89,7 @@ def main() -> int:
             rows[name] = row
             print(f'{name}: live {row["live"]} | headless {row["headless"]} -> {row["verdict"]}',
                   flush=True)
-    print(json.dumps({'lockstep': a.lockstep, 'jobs': rows,
+    print(json.dumps({'lockstep': a.lockstep, 'separate_cnc': a.separate_cnc, 'jobs': rows,
                       'all_ok': all(r['verdict'] == 'ok' for r in rows.values())}))
     return 0
 

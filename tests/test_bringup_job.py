@@ -24,6 +24,25 @@ def test_the_sim_node_plays_the_job_instead_of_a_scenario():
     assert specs['ladrc_recorder'].parameters['scenario'] == 'plate_holes'
 
 
+def test_a_separate_cnc_is_the_cnc_node_beside_the_sim():
+    specs = {s.name: s for s in node_specs('showcase', job='plate_holes', lockstep=True,
+                                           separate_cnc=True)}
+    assert specs['ladrc_sim'].parameters['separate_cnc'] is True
+    cnc = specs['ladrc_cnc']
+    assert (cnc.package, cnc.executable) == ('ladrc_sim', 'cnc_node')
+    assert cnc.parameters == {'job': 'plate_holes', 'lockstep': True}
+    assert 'ladrc_cnc' not in {s.name for s in node_specs('showcase', job='plate_holes')}
+
+
+def test_a_separate_cnc_without_a_job_is_one_line(capsys, monkeypatch):
+    started = []
+    monkeypatch.setattr(bringup.Bringup, 'start', lambda self: started.append(self))
+    assert bringup.main(['--separate-cnc']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ['bringup: --separate-cnc needs --job (a scenario has no CNC)']
+    assert not started
+
+
 def test_an_unknown_job_or_a_bad_override_is_one_line_and_nothing_starts(tmp_path, capsys,
                                                                           monkeypatch):
     started = []

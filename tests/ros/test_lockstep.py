@@ -51,19 +51,23 @@ def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(cmd, proc.returncode, out, '')
 
 
-def lockstep_run(scenario: str, bag: Path, logs: Path, what: str = '--scenario') -> dict:
+def lockstep_run(scenario: str, bag: Path, logs: Path, what: str = '--scenario',
+                 extra: tuple[str, ...] = ()) -> dict:
     """``bringup --lockstep`` (sim, follow node, recorder as processes) into ``bag``.
 
-    ``what``: ``--job`` plays ``scenario`` as a cutting job. Return bringup's last line.
+    ``what``: ``--job`` plays ``scenario`` as a cutting job; ``extra``: more bringup
+    arguments. Return bringup's last line.
     """
     res = run([str(BIN / 'bringup'), what, scenario, '--lockstep', '--unpaced',
                '--bag', str(bag), '--logs', str(logs),
-               '--domain-id', os.environ['ROS_DOMAIN_ID']])
+               '--domain-id', os.environ['ROS_DOMAIN_ID'], *extra])
     logs_text = '\n'.join(f'--- {p.name}\n{p.read_text(errors="replace")[-2000:]}'
                           for p in sorted(logs.glob('*.log')))
     assert res.returncode == 0, res.stdout[-2000:] + logs_text
-    assert json.loads(res.stdout.strip().splitlines()[-1])['exit_codes'] == {
-        'ladrc_follow': 0, 'ladrc_sim': 0, 'ladrc_recorder': 0}, logs_text
+    codes = {'ladrc_follow': 0, 'ladrc_sim': 0, 'ladrc_recorder': 0}
+    if '--separate-cnc' in extra:
+        codes['ladrc_cnc'] = 0
+    assert json.loads(res.stdout.strip().splitlines()[-1])['exit_codes'] == codes, logs_text
     summary = json.loads((bag / 'recording.json').read_text())
     assert summary['messages_lost'] == 0 and summary['messages_dropped'] == 0, summary
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -141,8 +145,9 @@ def small_job(folder: Path) -> str:
     return str(folder / 'small.yaml')
 
 
-@pytest.mark.parametrize('job', ['tipping_pair', 'small'])
-def test_live_lockstep_job_equals_headless(tmp_path, job):
+@pytest.mark.parametrize('job,separate', [('tipping_pair', False), ('small', False),
+                                          ('small', True)])
+def test_live_lockstep_job_equals_headless(tmp_path, job, separate):
     """A cutting job live in lock step equals ``ladrc job``: its figures and its bag.
 
     The sim node plays the simulated CNC (cnc/motion out, the follow services called, the
@@ -150,12 +155,15 @@ def test_live_lockstep_job_equals_headless(tmp_path, job):
     sample the step names, the CNC for the status answering the step. tipping_pair (shipped):
     a pierce, a part tipping up, the collision retract, the FAULT and its feed hold; small:
     three contours with pierce stages and leapfrogs, parts dropping out, corner and edge-ahead
-    holds, the job's own controller parameters over the shipped set.
+    holds, the job's own controller parameters over the shipped set. ``separate``: the CNC
+    node plays the CNC (three processes in lock step: the CNC's step k, then the sim's, then
+    the controller's tick), equal to ``ladrc job --separate-cnc``.
     """
     name = small_job(tmp_path) if job == 'small' else job
     live, headless = tmp_path / 'live', tmp_path / 'headless'
-    figures = lockstep_run(name, live, tmp_path / 'logs', '--job')
-    res = run([str(BIN / 'ladrc'), 'job', name, '-o', str(headless)])
+    flag = ('--separate-cnc',) if separate else ()
+    figures = lockstep_run(name, live, tmp_path / 'logs', '--job', flag)
+    res = run([str(BIN / 'ladrc'), 'job', name, '-o', str(headless), *flag])
     assert res.returncode == 0, res.stdout[-2000:]
     head = json.loads(res.stdout.strip().splitlines()[-1])
     for key in JOB_FIGURES:  # (JSON: the contours' keys are text in both)

@@ -28,6 +28,7 @@ setup(
     entry_points={
         'console_scripts': [
             'sim_node = ladrc_sim.node.sim_node:main',
+            'cnc_node = ladrc_sim.node.cnc_node:main',
         ],
     },
 )

@@ -37,6 +37,9 @@ def _add_job(p: argparse.ArgumentParser) -> None:
                    help='switch a CNC-partner feature off (repeatable)')
     p.add_argument('--compare', choices=sorted(FEATURES),
                    help='run with the feature on and off; report both and the difference')
+    p.add_argument('--separate-cnc', action='store_true',
+                   help='the CNC apart from the world, as with the CNC node (bringup --job '
+                   '--separate-cnc): the sheet sees XY only from its motion samples')
     p.add_argument('-o', '--output', help='folder for job.json, job.png and bag/ (must not exist)')
 
 
@@ -71,8 +74,11 @@ def contour_progress(label: str) -> Any:
 
 
 def run(job: Any, off: list[str], record_internals: bool = False,
-        progress: Any = None) -> Any:
-    """Run ``job`` with the features in ``off`` switched off; return its JobResult."""
+        progress: Any = None, separate_cnc: bool = False) -> Any:
+    """Run ``job`` with the features in ``off`` switched off; return its JobResult.
+
+    ``separate_cnc``: as with the CNC node (``run_job``'s ``separate_cnc``).
+    """
     from ladrc_follow.analysis.gate import check_gate
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import ParameterError, params_from_dict
@@ -90,7 +96,7 @@ def run(job: Any, off: list[str], record_internals: bool = False,
         raise CliError(f'{job.path}: controller: {" ".join(str(exc).split())}') from None
     try:
         result = run_job(job, FollowController(params), record_internals=record_internals,
-                         progress=progress)
+                         progress=progress, separate_cnc=separate_cnc)
     finally:
         if progress is not None:
             progress(0, 0)
@@ -114,12 +120,14 @@ def _run_job(a: argparse.Namespace) -> int:
     if out_dir is not None and out_dir.exists():
         raise CliError(f'{out_dir} exists already: nothing is overwritten')
     result = run(job, a.off, record_internals=out_dir is not None,
-                 progress=contour_progress(f'ladrc job {job.name}'))
-    out: dict[str, Any] = {'job': job.name, 'off': a.off, **result.figures,
+                 progress=contour_progress(f'ladrc job {job.name}'), separate_cnc=a.separate_cnc)
+    out: dict[str, Any] = {'job': job.name, 'off': a.off,
+                           **({'separate_cnc': True} if a.separate_cnc else {}), **result.figures,
                            'wall_s': round(result.wall_s, 2), 'realtime_x': realtime_x(result)}
     if a.compare:
         other = run(job, a.off + [a.compare],
-                    progress=contour_progress(f'ladrc job {job.name}, {a.compare} off'))
+                    progress=contour_progress(f'ladrc job {job.name}, {a.compare} off'),
+                    separate_cnc=a.separate_cnc)
         out = {'job': job.name, 'feature': a.compare, 'on': result.figures,
                'off': other.figures, 'difference': compare(a.compare, result, other)}
     if out_dir is not None:

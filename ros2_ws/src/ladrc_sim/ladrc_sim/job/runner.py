@@ -14,6 +14,13 @@ sheet_mm, nozzle_mm, coverage, plate_velocity_mm_s, x_mm, y_mm)`` before each ``
 ``quick_stop()`` (the drive brakes at its maximum deceleration) and ``refusals()`` (commands
 refused after they were sent: the CNC aborts as on a refusal at once). Same job + seed ->
 identical series.
+
+A separate CNC (``separate_cnc``; docs/job-world.md, "A separate CNC"): the CNC keeps its own
+model of the sheet (:class:`~.cnc_station.CncStation`) and the world knows it only through its
+motion samples (:class:`~.world.MotionView`: XY extrapolated between them, kerfs and drops from
+them): what the sim node does with the CNC node on the wire, where ``cnc`` is the sim node's
+link to it (``step(answers)`` -> the sample taken this tick or None, ``xy`` of that sample,
+``log``).
 """
 
 from __future__ import annotations
@@ -31,9 +38,8 @@ from ..models.axis import H_S, Axis, AxisParams
 from ..models.sensor import Sensor, SensorParams, oscillator_hz
 from ..models.sheet_xy import SheetXY
 from .cnc import Cnc
-
-KERF_STEP_MM = 0.2
-"""The beam lays its kerf every this much of path (finer than the raster's 0.25 mm cells)."""
+from .cnc_station import CncStation
+from .world import CUT, KerfLayer, MotionView
 
 SERIES = ('t_s', 'x_mm', 'y_mm', 'nozzle_mm', 'true_gap_mm', 'reading_mm', 'reading_valid',
           'coverage',
@@ -99,6 +105,27 @@ class JobRun:
         return oscillator_hz(self.reading_mm, self._sensor)
 
 
+class JobEnd:
+    """When a job's run ends: some ticks after the CNC's end, once the command is zero.
+
+    :data:`AFTER_TICKS` after the CNC finished or aborted, at the first tick the controller
+    commands zero (a retract or a ramp down ran to its end). One rule for the headless runner
+    and the CNC node, so that a lock-step run ends at the same tick.
+    """
+
+    AFTER_TICKS = 20
+
+    def __init__(self) -> None:
+        self.tick = -1  # the tick the CNC finished or aborted
+
+    def done(self, i: int, log: Any, answers: dict) -> bool:
+        """Return whether the run ends after tick ``i`` (``answers``: that tick's status)."""
+        if (log.finished or log.aborted) and self.tick < 0:
+            self.tick = i
+        return (self.tick >= 0 and i - self.tick >= self.AFTER_TICKS
+                and answers['velocity_mm_s'] == 0.0)
+
+
 @dataclass(frozen=True)
 class _Scenario:
     name: str
@@ -107,11 +134,14 @@ class _Scenario:
 
 def run_job(job: Any, controller: Any, *, max_s: float | None = None,
             record_internals: bool = False,
-            progress: Callable[[int, int], None] | None = None) -> JobResult:
+            progress: Callable[[int, int], None] | None = None,
+            separate_cnc: bool = False, cnc: Any = None) -> JobResult:
     """Run ``job`` (:class:`~.jobfile.Job`) with ``controller``; return its :class:`JobResult`.
 
     ``record_internals``: keep the controller's status of every tick (for a bag);
-    ``progress(contours_cut, contours)``: called as each contour is cut to its end.
+    ``progress(contours_cut, contours)``: called as each contour is cut to its end;
+    ``separate_cnc``: the CNC apart from the world (module docstring), in this process, or
+    ``cnc``: on the wire (the sim node's link to the CNC node).
     """
     h = H_S
     program = job.program()
@@ -130,16 +160,22 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
         events.append((tick_i, name, kw))
         return controller.command(name, **kw)
 
-    cnc = Cnc(program, job.cnc, command, h, (x0, y0), sheet.void_ahead_mm)
+    if cnc is None and separate_cnc:
+        cnc = CncStation(job, program, command, h)
+    station = cnc  # a separate CNC, seen through its samples (view); else the CNC itself
+    if station is None:
+        cnc = view = Cnc(program, job.cnc, command, h, (x0, y0), sheet.void_ahead_mm)
+    else:
+        view = MotionView(x0, y0)
     cols = {k: np.full(n, np.nan) for k in SERIES}
     answers: dict[str, Any] = controller.internals()
-    kerf_from: tuple[float, float] | None = None
+    kerf = KerfLayer(sheet, job.kerf_mm)
     tips = set(job.tip_parts)
     c_step, c_internals = controller.step, controller.internals
     c_truth, c_quick_stop, c_refusals = (
         getattr(controller, name, None) for name in ('truth', 'quick_stop', 'refusals'))
     last = 0
-    end_tick = -1  # the tick the CNC finished or aborted
+    end = JobEnd()
     rows: list[dict] | None = [] if record_internals else None
     wall0 = time.perf_counter()
     for i in range(n):
@@ -149,8 +185,12 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
             for name, message in c_refusals():
                 cnc.refused(name, message)
         sample = cnc.step(answers)
-        x, y = cnc.x, cnc.y
-        for k in cnc.cut_done:  # a contour cut to its end: its region drops (or tips)
+        if getattr(cnc, 'ended', False):
+            break  # the CNC on the wire ended its job instead of stepping this tick
+        if station is not None:
+            view.see(t, sample, *station.xy)
+        x, y = view.x, view.y
+        for k in view.cut_done:  # a contour cut to its end: its region drops (or tips)
             c = program.contours[k]
             if c.part in tips and not c.inner:
                 sheet.tip(c.region, job.tip_rise_mm)
@@ -171,28 +211,19 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
         u = c_step(TickInput(t, reading, valid, t, z, t, True, False, status), sample)
         answers = c_internals()
         axis.step(u, True, c_quick_stop is not None and c_quick_stop())
-        if cnc.beam and cnc.segment == int(Segment.CUT):  # the kerf, as it is cut
-            if kerf_from is None:
-                kerf_from = (x, y)
-            elif math.hypot(x - kerf_from[0], y - kerf_from[1]) >= KERF_STEP_MM:
-                sheet.lay_kerf(kerf_from[0], kerf_from[1], x, y, job.kerf_mm)
-                kerf_from = (x, y)
-        elif kerf_from is not None:
-            sheet.lay_kerf(kerf_from[0], kerf_from[1], x, y, job.kerf_mm)
-            kerf_from = None
+        kerf.step(x, y, view.beam and view.segment == CUT)  # the kerf, as it is cut
         if rows is not None:  # with the drive enable the command went out with (the bag's)
             rows.append({**answers, 'command_enable': bool(getattr(controller, 'enable', True))})
+        feed = (view.actual_feed_mm_s if station is not None
+                else cnc.move.v if cnc.move is not None else 0.0)
         row = (t, x, y, z, true_gap, reading, valid, cov, u, answers['state'], answers['substate'],
-               cnc.segment, cnc.contour, cnc.beam, answers['target_gap_mm'],
-               cnc.move.v if cnc.move is not None else 0.0, cnc.feed_mm_s,
-               answers['feed_override_request'])
+               view.segment, view.contour, view.beam, answers['target_gap_mm'], feed,
+               view.feed_mm_s, answers['feed_override_request'])
         for key, value in zip(SERIES, row, strict=True):
             cols[key][i] = value
         last = i
-        if (cnc.log.finished or cnc.log.aborted) and end_tick < 0:
-            end_tick = i
-        if end_tick >= 0 and i - end_tick >= 20 and answers['velocity_mm_s'] == 0.0:
-            break  # the end, once the axis stands (a retract, a ramp down ran to its end)
+        if end.done(i, cnc.log, answers):
+            break
     else:
         if not cnc.log.finished:
             cnc.log.aborted = (cnc.log.aborted
@@ -274,7 +305,10 @@ def job_figures(series: dict[str, np.ndarray], h_s: float, log: Any, n_contours:
         'feed_override_min': round(float(np.min(series['feed_override'][cutting])), 3)
         if cutting.any() else 1.0,
         'corner_s': round(float(slow.sum()) * h_s, 4),
-        'corner_max_down_mm': round(float(np.max(down)), 4) if down.size else 0.0,
+        # (a tick whose target is NaN: the follow stopped while the CNC's sample still said
+        # cut, a cycle late; live or with a separate CNC)
+        'corner_max_down_mm': round(float(np.nanmax(down)), 4) if np.isfinite(down).any()
+        else 0.0,
         'finished': log.finished,
         'aborted': log.aborted,
     }

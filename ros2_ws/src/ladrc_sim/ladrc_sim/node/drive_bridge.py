@@ -59,10 +59,12 @@ class DriveBridge:
         # the commander lock and the held command: the loop thread takes commands, the
         # service thread resets the drive
         self.mutex = threading.Lock()
-        # woken by a command, or (a job in lock step) by the controller's status
-        status = getattr(node, 'status_reader', None)
-        self._wait = SampleWait(node.context, (node.cmd_reader,)
-                                + ((status,) if status is not None else ()))
+        # woken by a command, or (a job in lock step) by the controller's status or the CNC's
+        # samples and steps (a separate CNC)
+        others = (getattr(node, name, None) for name in ('status_reader', 'cnc_reader',
+                                                         'cnc_step_reader', 'cnc_job_reader'))
+        self._wait = SampleWait(node.context,
+                                (node.cmd_reader, *(r for r in others if r is not None)))
         self.running = True
         h = node.h_s
         self.period_ns = int(round(h * 1e9))

@@ -53,6 +53,8 @@ from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.service_thread import ServiceThread
 from ladrc_contract.services import FOLLOW_SERVICES, fill_request, service_class
 from ladrc_contract.topics import (
+    CNC_JOB_TOPIC,
+    CNC_LOCKSTEP_TOPIC,
     CNC_MOTION_TOPIC,
     COMMAND_TOPIC,
     DIAGNOSTICS_TOPIC,
@@ -91,6 +93,7 @@ from ..models.sensor import oscillator_hz_scalar
 from .commander_lock import describe
 from .drive_bridge import COMMAND_FIELDS, DriveBridge, LockstepAbort, StopSimulation
 from .job_drive import JobDrive
+from .remote_cnc import RemoteCnc
 
 
 class _Outgoing:
@@ -119,6 +122,9 @@ class SimNode(LoopNode):
         self.declare_parameter('scenario', 'showcase')
         # a cutting job instead of a scenario: a shipped job's name or a job file (YAML)
         self.declare_parameter('job', '')
+        # a job's CNC is the CNC node (or a bridge to a real CNC): XY, beam and the contours cut
+        # come from cnc/motion (remote_cnc.py), the commands from it to the controller
+        self.declare_parameter('separate_cnc', False)
         # a job's figures (job/runner.py job_figures, with wall_s and realtime_x) as JSON here
         self.declare_parameter('figures_file', '')
         self.declare_parameter('exit_at_end', True)
@@ -163,9 +169,20 @@ class SimNode(LoopNode):
         self.pub_truth = self.create_publisher(SimTruth, TRUTH_TOPIC, high_rate)
         self.pub_step = (self.create_publisher(LockStep, LOCKSTEP_TOPIC, high_rate)
                          if self.lockstep else None)
-        # a job: the CNC's motion out, the controller's answers in (job_drive.py)
+        # a job: the CNC's motion out, the controller's answers in (job_drive.py); with a
+        # separate CNC its motion, lock steps and end in (remote_cnc.py)
+        self.separate_cnc = bool(self.job) and bool(self.get_parameter('separate_cnc').value)
         self.pub_cnc = (self.create_publisher(CncMotion, CNC_MOTION_TOPIC, high_rate)
-                        if self.job else None)
+                        if self.job and not self.separate_cnc else None)
+        command_in = to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep
+                              else qos.CONTROL_INPUT)
+        self.cnc_reader = (self.create_loop_reader(CncMotion, CNC_MOTION_TOPIC, command_in)
+                           if self.separate_cnc else None)
+        self.cnc_step_reader = (self.create_loop_reader(LockStep, CNC_LOCKSTEP_TOPIC, command_in)
+                                if self.separate_cnc and self.lockstep else None)
+        self.cnc_job_reader = (self.create_loop_reader(String, CNC_JOB_TOPIC,
+                                                       to_rclpy(qos.RUN_TEXT))
+                               if self.separate_cnc else None)
         self.status_reader = (self.create_loop_reader(
             FollowStatus, STATUS_TOPIC,
             to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.CONTROL_INPUT))
@@ -328,7 +345,7 @@ class SimNode(LoopNode):
 
     def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait until the controller's follow services are up (so no command is lost)."""
-        needed = (set(CNC_COMMANDS) if self.job is not None else
+        needed = (set() if self.separate_cnc else set(CNC_COMMANDS) if self.job is not None else
                   {e.name for e in self.scenario.timeline if e.name in FOLLOW_SERVICES})
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
@@ -344,8 +361,11 @@ class SimNode(LoopNode):
                 and self.pub_gap.get_subscription_count() > 0
                 and self.pub_fb.get_subscription_count() > 0
                 and self.count_publishers(self.cmd_reader.topic_name) > 0
-                and (self.job is None or (self.pub_cnc.get_subscription_count() > 0
-                                          and self.count_publishers(STATUS_TOPIC) > 0)))
+                and (self.job is None or self.count_publishers(STATUS_TOPIC) > 0)
+                and (self.pub_cnc is None or self.pub_cnc.get_subscription_count() > 0)
+                and (not self.separate_cnc
+                     or (self.count_publishers(CNC_MOTION_TOPIC) > 0
+                         and self.count_publishers(CNC_LOCKSTEP_TOPIC) > 0)))
 
     def wait_for_recorder(self, timeout_s: float) -> bool:
         """Wait until something (the recorder) subscribes to sim/truth."""
@@ -438,7 +458,9 @@ def main(argv: list[str] | None = None) -> int:
             if node.job is not None:
                 node.get_logger().info(f'job {node.job.name}: '
                                        f'{len(node.job.program().contours)} contours')
-                job = run_job(node.job, JobDrive(node, bridge))
+                job = (run_job(node.job, JobDrive(node, bridge, remote_cnc=True),
+                               cnc=RemoteCnc(node, bridge)) if node.separate_cnc
+                       else run_job(node.job, JobDrive(node, bridge)))
                 figures = {**job.figures, 'wall_s': round(job.wall_s, 3), 'realtime_x': round(
                     job.figures['job_time_s'] / max(job.wall_s, 1e-9), 3)}
                 node.get_logger().info(f'job done: {json.dumps(figures, default=str)}')

@@ -1,7 +1,8 @@
 """Bring-up without ros2cli: the sim node, the follow node and the recorder as processes.
 
 ``bringup --scenario showcase --params config/follow.yaml --bag out/run1`` (or ``--job NAME``:
-a cutting job, the sim node playing the simulated CNC) starts each node as a separate process
+a cutting job, the sim node playing the simulated CNC; with ``--separate-cnc`` the CNC node
+plays it) starts each node as a separate process
 on an isolated DDS domain (its own ``ROS_DOMAIN_ID``, localhost discovery), waits until the
 simulator has played its scenario (or Ctrl-C), then stops them in the safe
 order: the controller first (it commands zero velocity), then the simulator, then the recorder
@@ -58,12 +59,14 @@ LIVE_LOOPS = ('deadline', 'sync')
 
 def node_specs(scenario: str, params_file: str | None = None, bag: str | None = None,
                loop: str = 'deadline', storage: str = 'mcap', lockstep: bool = False,
-               paced: bool = True, job: str | None = None) -> list[NodeSpec]:
+               paced: bool = True, job: str | None = None,
+               separate_cnc: bool = False) -> list[NodeSpec]:
     """Return the nodes of a simulated run: the one configuration bringup and launch share.
 
     ``lockstep``: the sim node and the follow node in lock step (docs/follow-node.md), the
     recorder reliable; ``paced``: lock step no faster than real time (else as fast as the
-    two processes go); ``job``: the sim node plays this cutting job instead of ``scenario``.
+    two processes go); ``job``: the sim node plays this cutting job instead of ``scenario``;
+    ``separate_cnc``: the job's CNC is the CNC node (docs/job-world.md, "A separate CNC").
     """
     specs = []
     if bag:
@@ -87,7 +90,12 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
         sim.update({'lockstep': True, 'realtime': bool(paced)})
     if bag:  # the bag holds the run from its first tick
         sim.update({'wait_for_recorder_s': 10.0, 'start_delay_s': 1.0})
+    if job and separate_cnc:
+        sim['separate_cnc'] = True
     specs.append(NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters=sim))
+    if job and separate_cnc:
+        specs.append(NodeSpec('ladrc_sim', 'cnc_node', 'ladrc_cnc',
+                              parameters={'job': job, 'lockstep': bool(lockstep)}))
     return specs
 
 
@@ -317,6 +325,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--job', default=None,
                     help='play a cutting job instead: a shipped job name or a job file '
                     '(ladrc_sim jobs; its controller section overrides --params)')
+    ap.add_argument('--separate-cnc', action='store_true',
+                    help="with --job: the job's CNC as a node of its own (cnc_node), the sim "
+                    'taking XY, beam and cuts from cnc/motion (docs/job-world.md)')
     ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')
     ap.add_argument('--bag', default=None, help='record a bag to this folder (must not exist)')
     ap.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
@@ -332,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--logs', default=None, help="folder for the nodes' output [terminal]")
     args = ap.parse_args(argv)
 
+    if args.separate_cnc and not args.job:
+        print('bringup: --separate-cnc needs --job (a scenario has no CNC)', file=sys.stderr)
+        return 2
     if args.bag and Path(args.bag).exists():
         print(f'bringup: {args.bag} exists; choose a new bag folder', file=sys.stderr)
         return 2
@@ -344,7 +358,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f'bringup: {exc}', file=sys.stderr)
         return 2
     specs = node_specs(args.scenario, params, args.bag, args.loop, args.storage,
-                       lockstep=args.lockstep, paced=not args.unpaced, job=args.job)
+                       lockstep=args.lockstep, paced=not args.unpaced, job=args.job,
+                       separate_cnc=args.separate_cnc)
     figures_file = scratch / 'figures.json' if scratch is not None else None
     if figures_file is not None:  # the sim node writes the job's figures there
         next(s for s in specs if s.name == 'ladrc_sim').parameters['figures_file'] = str(
@@ -366,7 +381,9 @@ def main(argv: list[str] | None = None) -> int:
         while not interrupted[0] and time.monotonic() < deadline:
             if up.wait('ladrc_sim', 0.2) is not None:
                 break
-            if any(p.poll() is not None for n, p in up.procs.items() if n != 'ladrc_sim'):
+            # the CNC node ends when its job has (exit 0); the sim node follows it at once
+            if any(p.poll() is not None and not (n == 'ladrc_cnc' and p.returncode == 0)
+                   for n, p in up.procs.items() if n != 'ladrc_sim'):
                 print('bringup: a node exited early: '
                       + ', '.join(f'{n}={p.returncode}' for n, p in up.procs.items()
                                   if p.poll() is not None), file=sys.stderr)
