@@ -159,19 +159,18 @@ def test_a_surprise_aborts_with_zero_and_enable_false(driver_conformance):  # no
     with open_bag(r.output / 'bag') as bag:
         times = [t for t, _ in bag.raw('/axis/velocity_command')]
         cmd = bag.columns('/axis/velocity_command', ['velocity_mm_s', 'enable'])
-        fb = [(m.seq, m.position_mm) for _, m in bag.messages('/axis/feedback')]
+        fb = [abs(m.velocity_mm_s) for _, m in bag.messages('/axis/feedback')]
     after = [i for i, t in enumerate(times) if t > aborted['end_ns']]
     # from the abort on: only zero with enable=false, for the hold time (0.3 s at 2 kHz)
     assert len(after) >= 500
     assert all(cmd['velocity_mm_s'][i] == 0.0 and not cmd['enable'][i] for i in after)
     assert max(times) <= aborted['end_ns'] + 1e9  # and then silence: no more motion tests
-    # the speed over 10 ms windows never went far past the bound (8 mm/s) before the stop:
-    # on the driver's sample clock (seq × 0.5 ms), not the recorder's receive times, which
-    # bunch on a loaded machine (17.7 mm/s "measured" from them in a loaded fresh-clone run)
-    seq = [x[0] for x in fb]
-    p = [x[1] for x in fb]
-    speeds = [abs(p[j] - p[i]) / ((seq[j] - seq[i]) * 0.5e-3) for i in range(0, len(seq) - 20, 5)
-              for j in (i + 20,) if seq[j] > seq[i]]
+    # the speed over 10 ms windows never went far past the bound (8 mm/s) before the stop: the
+    # drive's own velocity (over its cycles, those it caught up after a stall included), not
+    # the recorder's receive times, which bunch on a loaded machine (17.7 mm/s "measured" from
+    # them in a loaded fresh-clone run), nor seq x 0.5 ms, which a stall of the driver's
+    # process shortens (silent cycles send nothing: 14.1 mm/s in a quiet fresh-clone run)
+    speeds = [sum(fb[i:i + 20]) / 20 for i in range(0, len(fb) - 20, 5)]
     assert max(speeds) < 14.0
 
 
