@@ -44,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_tools'))
 
-from ladrc_tools.bags import bag as bagmod  # noqa: E402
+from ladrc_tools.bags import writer as bagmod  # noqa: E402 (its clock: time.monotonic)
 from ladrc_tools.bags.bag import BagWriter, RowPacker, open_bag  # noqa: E402
 
 TOPICS = {'axis/capacitive_height': 'ladrc_msgs/msg/CapacitiveHeight',

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+from dataclasses import fields
 import json
 import math
 import os
@@ -10,6 +11,7 @@ import os
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
 from ladrc_tools.bags.bag import (
+    Bag,
     BagError,
     BagWriter,
     RowPacker,
@@ -19,6 +21,7 @@ from ladrc_tools.bags.bag import (
     string_msg,
     write_run_bag,
 )
+from ladrc_tools.bags.columns import CdrColumns, NoColumns, fields_of
 from ladrc_tools.bags.typestore import ladrc_typestore
 from ladrc_tools.cli import main as ladrc
 import numpy as np
@@ -79,8 +82,9 @@ def test_row_packer_equals_rosbags_serializer():
             for f in ('seq', 'tick', 'gap_mm', 'true_gap_mm', 'velocity_mm_s'):
                 if f in cols:
                     assert getattr(msg, f) == cols[f][i]
-        assert packer.unpack(rows)['header.stamp.sec'].tolist() == list(
-            cols['header.stamp.sec'])
+        buf, start, size = _flat(rows)
+        assert CdrColumns(typename, store).decode(buf, start, size)[
+            'header.stamp.sec'].tolist() == list(cols['header.stamp.sec'])
 
 
 def test_seq_counting():
@@ -611,3 +615,117 @@ def test_report_of_a_bag_that_starts_idle_for_longer_than_a_slice(tmp_path, monk
     assert one['followed_at_s'] > 1.0  # the IDLE second has no target
     for k, v in one.items():
         assert sliced[k] == pytest.approx(v, rel=1e-9, nan_ok=True), k
+
+
+# ---- strings in columns (the 2 kHz topics carry text) -------------------------------------------
+def _flat(rows: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Messages as the column decoder takes them: one buffer, starts, sizes."""
+    size = np.array([len(r) for r in rows], dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(size[:-1])]).astype(np.int64)
+    return np.frombuffer(b''.join(rows), dtype=np.uint8), start, size
+
+
+TEXTS = ('', '', 'a', 'corner lock: feed 3.1 < 30 % of 100 mm/s', 'Höhe ±0,1 mm', 'abc',
+         'abcd', 'x' * 301, '/ladrc_follow', '/ladrc_follow')
+
+
+def _status_messages(store, n: int, seed: int = 5) -> list:
+    """FollowStatus messages with random numbers and texts of every length and alignment."""
+    rng = np.random.default_rng(seed)
+    cls = store.types['ladrc_msgs/msg/FollowStatus']
+    base = store.deserialize_cdr(RowPacker('ladrc_msgs/msg/FollowStatus', store).pack(1, {})[0],
+                                 'ladrc_msgs/msg/FollowStatus')
+    out = []
+    for i in range(n):
+        kw = {}
+        for f in fields(cls):
+            v = getattr(base, f.name)
+            if isinstance(v, bool):
+                kw[f.name] = bool(rng.integers(0, 2))
+            elif isinstance(v, float):
+                kw[f.name] = float(rng.normal()) if i % 7 else math.nan
+            elif isinstance(v, int):
+                kw[f.name] = int(rng.integers(0, 250))
+            elif isinstance(v, str):
+                kw[f.name] = TEXTS[int(rng.integers(0, len(TEXTS)))]
+            else:
+                kw[f.name] = v
+        kw['header'] = store.types['std_msgs/msg/Header'](
+            stamp=store.types['builtin_interfaces/msg/Time'](sec=i, nanosec=7 * i),
+            frame_id=TEXTS[i % len(TEXTS)])
+        out.append(cls(**kw))
+    return out
+
+
+def test_column_decoder_equals_rosbags_with_strings_of_every_length():
+    """Every field of messages with texts of any length (and UTF-8) decodes as rosbags does."""
+    store = ladrc_typestore()
+    typename = 'ladrc_msgs/msg/FollowStatus'
+    msgs = _status_messages(store, 300)
+    rows = [bytes(store.serialize_cdr(m, typename)) for m in msgs]
+    assert len({len(r) for r in rows}) > 10  # the fields after the strings move
+    cols = CdrColumns(typename, store).decode(*_flat(rows))
+    for i, m in enumerate(msgs):
+        for key, kind in fields_of(typename, store):
+            want = m
+            for part in key.split('.'):
+                want = getattr(want, part)
+            got = cols[key][i]
+            if kind == 'string':
+                assert isinstance(got, str) and got == want, key
+            elif isinstance(want, float) and math.isnan(want):
+                assert math.isnan(got), key
+            else:
+                assert got == want, key
+    # a subset of the fields: the same values, only those
+    some = CdrColumns(typename, store).decode(*_flat(rows), names=['tick', 'hold_reason'])
+    assert list(some) == ['tick', 'hold_reason']
+    assert some['hold_reason'].tolist() == cols['hold_reason'].tolist()
+
+
+def test_column_decoder_refuses_what_is_not_the_message():
+    """A short message or a string length running past its end: None, never wrong columns."""
+    store = ladrc_typestore()
+    typename = 'ladrc_msgs/msg/VelocityCommand'
+    msgs = _status_messages(store, 1)  # any header
+    cmd = store.types[typename](header=msgs[0].header, seq=3, velocity_mm_s=-1.5, enable=True,
+                                sample_seq=2, commander='/ladrc_follow', session=9,
+                                release=False)
+    row = bytes(store.serialize_cdr(cmd, typename))
+    dec = CdrColumns(typename, store)
+    assert dec.decode(*_flat([row, row]))['commander'].tolist() == ['/ladrc_follow'] * 2
+    assert dec.decode(*_flat([row, row[:-9]])) is None  # truncated
+    at = row.index(b'/ladrc_follow') - 4
+    long_len = row[:at] + (10**6).to_bytes(4, 'little') + row[at + 4:]
+    assert dec.decode(*_flat([row, long_len])) is None
+    bad_utf8 = row.replace(b'/ladrc_follow', b'/ladrc_\xff\xfeollow')
+    assert dec.decode(*_flat([row, bad_utf8])) is None
+    with pytest.raises(NoColumns):
+        CdrColumns('diagnostic_msgs/msg/DiagnosticArray', store)
+
+
+def test_text_topics_are_read_in_columns_not_message_by_message(tmp_path, monkeypatch):
+    """A bag whose 2 kHz topics carry text is read without one rosbags call per message."""
+    store = ladrc_typestore()
+    msgs = _status_messages(store, 2000, seed=9)
+    path = tmp_path / 'bag'
+    with BagWriter(path) as w:
+        for i, m in enumerate(msgs):
+            w.write('follow/status', 10**9 + i * 500_000, m)
+    with open_bag(path) as b:
+        b._indexed_files = lambda: None  # rosbags' reader: the column decoder per batch
+        plain = b.columns('follow/status')
+    calls = []
+    monkeypatch.setattr(Bag, '_slow_columns', lambda *a: calls.append(a) or {})
+    for indexed in (True, False):
+        with open_bag(path) as b:
+            if not indexed:
+                b._indexed_files = lambda: None
+            else:
+                assert b._indexed_files() is not None
+            cols = b.columns('follow/status')
+        assert not calls
+        assert cols['hold_reason'].tolist() == [m.hold_reason for m in msgs]
+        assert cols['fault_reason'].tolist() == [m.fault_reason for m in msgs]
+        assert cols['cnc_contour'].tolist() == [m.cnc_contour for m in msgs]
+        assert list(cols) == list(plain)

@@ -8,16 +8,17 @@ mapped an event field to the wrong argument or lost the parameter set would show
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, is_dataclass, replace
 import json
 import math
+from pathlib import Path
 
 from ladrc_contract.qos import TOPIC_QOS
 from ladrc_follow.control.follow import COMMANDS, FollowController
 from ladrc_follow.control.params import ControllerParams, dump_params
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
-from ladrc_tools.bags.bag import BagWriter, rosbags_qos, string_msg, write_run_bag
+from ladrc_tools.bags.bag import BagWriter, open_bag, rosbags_qos, string_msg, write_run_bag
 from ladrc_tools.cli import main as ladrc
 from ladrc_tools.offline.replay import (
     KIND_NAMES,
@@ -34,6 +35,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 # Every kind of event the replay must re-apply at its tick: a start, a machining flag on and
 # off (PID <-> LADRC hand-overs), a target change above the re-interpolation threshold, a
@@ -417,3 +419,71 @@ def test_streamed_join_finds_late_out_of_order_and_repeated_commands(tmp_path, m
     assert np.array_equal(np.concatenate([p.command_present for p in parts]),
                           ref.command_present)
     assert 0 < np.count_nonzero(~ref.command_present) < n
+
+
+# ---- bags of an older contract revision -------------------------------------------------------
+REV1_MSGS = Path(__file__).resolve().parents[1] / 'data' / 'ladrc_msgs_rev1'
+"""The ladrc_msgs .msg files of revision 1 (before the lock step and the CNC interface)."""
+
+
+def _revision_1_store():
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for f in sorted(REV1_MSGS.glob('*.msg')):
+        store.register(get_types_from_msg(f.read_text(encoding='utf-8'),
+                                          f'ladrc_msgs/msg/{f.stem}'))
+    return store
+
+
+def _in_revision(msg, store, typename: str):
+    """``msg`` as ``store``'s definition of ``typename``: the fields both revisions have."""
+    cls = store.types[typename]
+    kw = {}
+    for f in fields(cls):
+        if f.name == '__msgtype__':
+            continue
+        value = getattr(msg, f.name)
+        kw[f.name] = (_in_revision(value, store, value.__msgtype__) if is_dataclass(value)
+                      else value)
+    return cls(**kw)
+
+
+def test_a_revision_1_bag_reads_in_columns_and_replays_bit_for_bit(headless, tmp_path, capsys):
+    """A bag with revision 1's definitions stored: read by them (not the installed ones)."""
+    _, path = headless
+    old = _revision_1_store()
+    rev1 = tmp_path / 'rev1'
+    with open_bag(path) as b:
+        custom = b.custom_data
+    with AnyReader([path]) as r, BagWriter(rev1, typestore=old, custom_data=custom) as w:
+        for c in r.connections:
+            w.add_topic(c.topic, c.msgtype)
+        for c, ts, data in r.messages():
+            if c.msgtype.startswith('ladrc_msgs/'):
+                msg = _in_revision(r.deserialize(data, c.msgtype), old, c.msgtype)
+                data = bytes(old.serialize_cdr(msg, c.msgtype))
+            w.write_raw(c.topic, ts, data)
+    with open_bag(rev1) as b:
+        assert b._indexed_files() is not None  # the tools' path: MCAP indexes + columns
+        cols = b.read_topics({t: None for t in b.topics})
+        msgs = {t: [m for _, m in b.messages(t)] for t in b.topics}
+    st, cmd = cols['/follow/status'], cols['/axis/velocity_command']
+    assert 'substate' not in st and 'hold_reason' not in st and 'commander' not in cmd
+    assert any(st['fault_reason'])  # the drive fault's text, after the strings' fields move
+    for topic, ms in msgs.items():  # every field as rosbags reads it by the bag's definitions
+        for key, col in cols[topic].items():
+            if key in ('timestamp_ns', 'stamp_s'):
+                continue
+            want = []
+            for m in ms:
+                for part in key.split('.'):
+                    m = getattr(m, part)
+                want.append(m)
+            got = col.tolist()
+            assert len(got) == len(want) and all(
+                g == w or (isinstance(w, float) and math.isnan(w) and math.isnan(g))
+                for g, w in zip(got, want, strict=True)), (topic, key)
+    capsys.readouterr()
+    assert ladrc(['replay', str(rev1)]) == 0
+    line = _json_line(capsys.readouterr().out)
+    assert line['mismatches'] == 0 and line['ticks'] == st['tick'].size
+    assert line['internal_mismatch_ticks'] == 0

@@ -7,9 +7,8 @@ record``'s) carries in its summary a *chunk index* per chunk and, after each chu
 *message index* per channel: the log time and the offset of each of the channel's messages
 inside the decompressed chunk (MCAP specification, records ``ChunkIndex`` and
 ``MessageIndex``). With those, one chunk becomes, per wanted channel, a vector of offsets; the
-messages of a fixed-size type (the contract's types with empty ``frame_id``) are then gathered
-with one numpy fancy index into an ``(n, size)`` byte array, which
-:class:`~.bag.RowPacker` views as columns.
+messages are then gathered with one numpy fancy index into one buffer of the channel's
+messages, which :class:`~.columns.CdrColumns` decodes into columns, strings included.
 
 The ``mcap`` library reads the summary (:meth:`mcap.reader.SeekingReader.get_summary`) and
 the chunk record (:meth:`mcap.records.Chunk.read`) and decompresses it
@@ -33,6 +32,8 @@ from typing import IO, Iterator
 
 import numpy as np
 
+from .columns import gather
+
 _MESSAGE, _MESSAGE_INDEX = 0x05, 0x07
 _MSG_HEADER = 1 + 8 + 2 + 4 + 8 + 8   # opcode .. publish_time: the data starts here
 _MSG_FIXED = 2 + 4 + 8 + 8             # record length - data length
@@ -41,14 +42,16 @@ _INDEX_ENTRY = np.dtype([('log_time', '<u8'), ('offset', '<u8')])
 
 @dataclass
 class ChannelRows:
-    """One channel's messages in one chunk, in log-time order.
+    """One channel's messages in one chunk, in log-time order, packed into one buffer.
 
-    ``rows`` is an ``(n, size)`` uint8 array when every message has the same size, else a
-    list of ``bytes``.
+    Message ``i`` is ``data[start[i]:start[i] + size[i]]`` (:class:`~.columns.CdrColumns`
+    decodes them all at once).
     """
 
     log_time_ns: np.ndarray
-    rows: np.ndarray | list[bytes]
+    data: np.ndarray
+    start: np.ndarray
+    size: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -141,14 +144,6 @@ def _index_entries(raw: bytes, pos: int, channel_id: int) -> np.ndarray:
     return np.frombuffer(raw, dtype=_INDEX_ENTRY, count=nbytes // 16, offset=start)
 
 
-def _at(records: bytes, dtype: np.dtype | str, offsets: np.ndarray) -> np.ndarray:
-    """Items of ``dtype`` starting at each byte offset of ``records`` (one gather, no loop)."""
-    dt = np.dtype(dtype)
-    every_byte = np.ndarray(shape=(len(records) - dt.itemsize + 1,), dtype=dt,
-                            buffer=records, strides=(1,))
-    return every_byte[offsets]
-
-
 def _channel_rows(records: bytes, entries: np.ndarray) -> ChannelRows:
     """Gather one channel's message data from the decompressed chunk ``records``."""
     if entries.size > 1 and np.any(np.diff(entries['log_time'].astype(np.int64)) < 0):
@@ -156,15 +151,21 @@ def _channel_rows(records: bytes, entries: np.ndarray) -> ChannelRows:
     off = entries['offset'].astype(np.int64)
     t = entries['log_time'].astype(np.int64)
     if not off.size:
-        return ChannelRows(t, np.zeros((0, 0), np.uint8))
-    if off.max() + _MSG_HEADER > len(records) or np.any(_at(records, 'u1', off) != _MESSAGE):
+        return ChannelRows(t, np.zeros(0, np.uint8), off, off)
+    if off.max() + _MSG_HEADER > len(records) or np.any(gather(records, 'u1', off) != _MESSAGE):
         raise ValueError('a message index points at no message record')
-    size = _at(records, '<u8', off + 1).astype(np.int64) - _MSG_FIXED
-    if np.all(size == size[0]) and off.max() + _MSG_HEADER + size[0] <= len(records):
-        rows = _at(records, np.dtype((np.void, int(size[0]))), off + _MSG_HEADER)
-        return ChannelRows(t, rows.view(np.uint8).reshape(off.size, int(size[0])))
-    return ChannelRows(t, [records[o + _MSG_HEADER:o + _MSG_HEADER + s]
-                           for o, s in zip(off.tolist(), size.tolist(), strict=True)])
+    size = gather(records, '<u8', off + 1).astype(np.int64) - _MSG_FIXED
+    first = off + _MSG_HEADER
+    if np.any(size < 0) or np.any(first + size > len(records)):
+        raise ValueError('a message record runs past the end of its chunk')
+    start = np.zeros(size.size, dtype=np.int64)
+    np.cumsum(size[:-1], out=start[1:])
+    if size[0] > 0 and np.all(size == size[0]):  # one gather of n rows of the same size
+        rows = gather(records, np.dtype((np.void, int(size[0]))), first)
+        return ChannelRows(t, rows.view(np.uint8).reshape(-1), start, size)
+    # one gather of every byte of the channel's messages: byte j of message i is at first[i] + j
+    index = np.arange(int(size.sum()), dtype=np.int64) + np.repeat(first - start, size)
+    return ChannelRows(t, np.frombuffer(records, dtype=np.uint8)[index], start, size)
 
 
 def open_index(path: Path) -> McapIndex | None:

@@ -19,10 +19,10 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 import yaml
 
+from .columns import CdrColumns
 from .errors import BagError
 from .mcap_index import ChannelRows, open_index
 from .recovery import _ScanReader, _unfinished_mcap
-from .rows import RowPacker, _packer
 
 
 # ---- reading --------------------------------------------------------------------------------
@@ -324,23 +324,26 @@ def _joined(parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
 class _Decoder:
     """Messages of one topic -> column dicts, a batch at a time (:meth:`Bag.stream`).
 
-    Messages come one by one (:meth:`add`, CDR bytes) or a chunk's rows at a time
-    (:meth:`add_rows`, from :mod:`.mcap_index`).
+    Messages come one by one (:meth:`add`, CDR bytes) or a chunk's messages at a time
+    (:meth:`add_rows`, from :mod:`.mcap_index`); :class:`~.columns.CdrColumns` decodes a batch
+    at once, strings included; a type with arrays, or a batch it cannot read, goes message by
+    message through rosbags (which names what is wrong).
     """
 
     def __init__(self, bag: Bag, topic: str, names: Iterable[str] | None) -> None:
         self.bag = bag
         self.msgtype = bag.topics.get(bag.name(topic))
         try:
-            self.packer: RowPacker | None = _packer(self.msgtype, bag.reader.typestore)
+            # built per bag: a bag of an older revision has its own definitions of the same type
+            self.columns: CdrColumns | None = CdrColumns(self.msgtype, bag.reader.typestore)
         except (BagError, KeyError):
-            self.packer = None
+            self.columns = None
         if names is not None:
             names = list(names)
             if 'stamp_s' in names:
                 names += ['header.stamp.sec', 'header.stamp.nanosec']
         self.names = names
-        self.parts: list[tuple[np.ndarray, np.ndarray | list[bytes]]] = []
+        self.parts: list[ChannelRows] = []
         self.stamps: list[int] = []
         self.batch: list[bytes] = []
         self.n = 0
@@ -357,49 +360,46 @@ class _Decoder:
         if not len(rows.log_time_ns):
             return self.n
         self._close_batch()
-        self.parts.append((rows.log_time_ns, rows.rows))
+        self.parts.append(rows)
         self.n += len(rows.log_time_ns)
         return self.n
 
     def _close_batch(self) -> None:
         if self.batch:
-            self.parts.append((np.asarray(self.stamps, dtype=np.int64), self.batch))
+            size = np.fromiter(map(len, self.batch), dtype=np.int64, count=len(self.batch))
+            start = np.zeros(size.size, dtype=np.int64)
+            np.cumsum(size[:-1], out=start[1:])
+            self.parts.append(ChannelRows(np.asarray(self.stamps, dtype=np.int64),
+                                          np.frombuffer(b''.join(self.batch), dtype=np.uint8),
+                                          start, size))
             self.stamps, self.batch = [], []
 
     def decode(self) -> dict[str, np.ndarray]:
-        """Decode what is queued (fast fixed-layout path, else the general one)."""
+        """Decode what is queued (columns at once, else message by message)."""
         self._close_batch()
         parts, self.parts, self.n = self.parts, [], 0
-        packer, names = self.packer, self.names
-        stamps = (np.concatenate([p[0] for p in parts]) if len(parts) != 1 else parts[0][0])
-        cols: dict[str, Any] = {}
-        arrays = [p[1] for p in parts if isinstance(p[1], np.ndarray)
-                  and packer is not None and p[1].shape[1] == packer.dtype.itemsize]
-        if packer is not None and len(arrays) == len(parts):
-            cols = packer.unpack_rows(arrays[0] if len(arrays) == 1 else np.concatenate(arrays),
-                                      names)
-        elif packer is not None:
-            cols = packer.unpack(_as_bytes(parts), names)
-        if not cols:  # strings in the messages: the general (slow) path for this batch
-            slow = self.bag._slow_columns(self.msgtype, _as_bytes(parts), names)
-            if packer is not None:  # the same columns, order and types as the fast path
-                slow = {k: slow[k] for k in packer._order if k in slow}
-            for k, v in slow.items():
-                arr = _to_array(v)
-                if packer is not None and k in packer.fields and arr.dtype != object:
-                    arr = arr.astype(packer.dtype[k])
-                cols[k] = arr
-        out = {'timestamp_ns': np.asarray(stamps, dtype=np.int64), **cols}
+        rows = parts[0] if len(parts) == 1 else _joined_rows(parts)
+        cols = None
+        if self.columns is not None:
+            cols = self.columns.decode(rows.data, rows.start, rows.size, self.names)
+        if cols is None:  # arrays in the type, or bytes that are not its CDR: rosbags says why
+            datas = [rows.data[a:a + n].tobytes()
+                     for a, n in zip(rows.start.tolist(), rows.size.tolist(), strict=True)]
+            cols = {k: _to_array(v)
+                    for k, v in self.bag._slow_columns(self.msgtype, datas, self.names).items()}
+        out = {'timestamp_ns': rows.log_time_ns, **cols}
         if 'header.stamp.sec' in out:
             out['stamp_s'] = out['header.stamp.sec'] + out['header.stamp.nanosec'] * 1e-9
         return out
 
 
-def _as_bytes(parts: list[tuple[np.ndarray, np.ndarray | list[bytes]]]) -> list[bytes]:
-    out: list[bytes] = []
-    for _, rows in parts:
-        out.extend(r.tobytes() for r in rows) if isinstance(rows, np.ndarray) else out.extend(rows)
-    return out
+def _joined_rows(parts: list[ChannelRows]) -> ChannelRows:
+    """One buffer of several batches' messages (their starts shifted)."""
+    shift = np.cumsum([0] + [p.data.size for p in parts[:-1]])
+    return ChannelRows(np.concatenate([p.log_time_ns for p in parts]),
+                       np.concatenate([p.data for p in parts]),
+                       np.concatenate([p.start + s for p, s in zip(parts, shift, strict=True)]),
+                       np.concatenate([p.size for p in parts]))
 
 
 def _one_line(exc: BaseException) -> str:

@@ -6,20 +6,15 @@ Python message object per tick; byte-identical to rosbags' serializer.
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 
+from .columns import CDR_PRIMITIVES as _BASE
 from .errors import BagError
 from .typestore import ladrc_typestore
 
 # ---- fast serialization of fixed-layout rows ------------------------------------------------
-_BASE = {'bool': '?', 'uint8': 'u1', 'int8': 'i1', 'byte': 'u1', 'char': 'u1', 'octet': 'u1',
-         'uint16': '<u2', 'int16': '<i2', 'uint32': '<u4', 'int32': '<i4', 'uint64': '<u8',
-         'int64': '<i8', 'float32': '<f4', 'float64': '<f8'}
-
-
-
 _ENCAP = 4  # CDR encapsulation header (little endian, 0x0001); alignment counts from its end
 
 
@@ -122,43 +117,6 @@ class RowPacker:
         buf = arr.tobytes()
         size = self.dtype.itemsize
         return [buf[i:i + size] for i in range(0, n * size, size)]
-
-    def unpack(self, datas: Sequence[bytes],
-               names: Iterable[str] | None = None) -> dict[str, Any]:
-        """Columns of serialized messages; ``{}`` unless every one has all strings empty."""
-        size = self.dtype.itemsize
-        if any(len(d) != size for d in datas):
-            return {}
-        return self.unpack_rows(np.frombuffer(b''.join(datas), dtype=np.uint8).reshape(
-            len(datas), size), names)
-
-    def unpack_rows(self, rows: np.ndarray,
-                    names: Iterable[str] | None = None) -> dict[str, Any]:
-        """Columns of an ``(n, size)`` uint8 array of messages; ``{}`` as :meth:`unpack`."""
-        if rows.ndim != 2 or rows.shape[1] != self.dtype.itemsize:
-            return {}
-        arr = np.ascontiguousarray(rows).view(self.dtype)[:, 0]
-        # same length is not enough: a short string can hide in alignment padding
-        if any(np.any(arr[f'~len.{k}'] != 1) for k in self.strings):
-            return {}
-        wanted = self.fields if names is None else [f for f in self.fields if f in set(names)]
-        out: dict[str, Any] = {f: arr[f].copy() for f in wanted}
-        for k in self.strings:
-            if names is None or k in set(names):
-                out[k] = np.full(arr.size, '', dtype=object)
-        # keep the message's field order
-        order = [k for k in self._order if k in out]
-        return {k: out[k] for k in order}
-
-
-_PACKERS: dict[tuple[str, int], RowPacker] = {}
-
-
-def _packer(msgtype: str, typestore: Any) -> RowPacker:
-    key = (msgtype, id(typestore))
-    if key not in _PACKERS:
-        _PACKERS[key] = RowPacker(msgtype, typestore)
-    return _PACKERS[key]
 
 
 def stamp_parts(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
+import operator
 import time
 from typing import Any, Callable, Iterator, Mapping
 
@@ -118,6 +119,7 @@ class Replay:
         new_tick = tuple.__new__
         step = ctl.step
         internals = ctl.internals
+        compared = operator.itemgetter(*COMPARED_INTERNALS)  # one C call per tick's row
         for rb in self.rec.batches(progress):
             wall0 = time.perf_counter()
             m = rb.ticks.size
@@ -156,11 +158,13 @@ class Replay:
                     out_v[i] = u
                     out_en[i] = True
                 if rows is not None:
-                    rows.append(internals())
+                    rows.append(compared(internals()))
             got = {}
-            if rows is not None:
-                got = {key: np.fromiter((r[key] for r in rows), dtype=float, count=m)
-                       for key in COMPARED_INTERNALS}
+            if rows is not None and m:
+                table = np.array(rows, dtype=float).reshape(m, len(COMPARED_INTERNALS))
+                got = {key: table[:, c].copy() for c, key in enumerate(COMPARED_INTERNALS)}
+            elif rows is not None:
+                got = {key: np.zeros(0) for key in COMPARED_INTERNALS}
             self.ticks += m
             self.wall_s += time.perf_counter() - wall0
             yield rb, ReplayBatch(np.asarray(out_v, dtype=np.float64),

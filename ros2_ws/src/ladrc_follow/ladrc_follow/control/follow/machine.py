@@ -862,47 +862,52 @@ class FollowController:
 
     # ------------------------------------------------------------------ status
     def internals(self) -> dict[str, float | int | bool | str]:
-        """Return this tick's status; keys = ``ladrc_msgs/FollowStatus`` fields."""
+        """Return this tick's status; keys = ``ladrc_msgs/FollowStatus`` fields.
+
+        Called every tick (the node's status, the replay's comparison): one dict, built once.
+        """
         st = self._state
         lad = self._ladrc
-        z = dict(fused_gap_mm=self._last_gap if math.isfinite(self._last_gap) else 0.0,
-                 td_x1_mm=0.0, td_x2_mm_s=0.0, eso_z1_mm=0.0, eso_z2=0.0, eso_z3=0.0,
-                 u0_mm_s=0.0, p_term_mm_s=0.0, d_term_mm_s=0.0, disturbance_term_mm_s=0.0)
         flags = self._flags
         source = self._source
-        if st == PID and self._use_ladrc and math.isfinite(self._last_gap):
+        last_gap = self._last_gap
+        if st == PID and self._use_ladrc and math.isfinite(last_gap):
             # what the seed's every-tick InitLADRC holds (reset is memoryless, see module doc)
             enc = self._last_enc if math.isfinite(self._last_enc) else None
-            lad.reset(self._last_gap, self._u, self._target_eff, enc)
+            lad.reset(last_gap, self._u, self._target_eff, enc)
         if st == LADRC_STATE or (st == PID and self._use_ladrc):
-            z.update(fused_gap_mm=float(lad.fused_gap_mm), td_x1_mm=float(lad.td_x1),
-                     td_x2_mm_s=float(lad.td_x2), eso_z1_mm=float(lad.z1),
-                     eso_z2=float(lad.z2), eso_z3=float(lad.z3), u0_mm_s=float(lad.u0),
-                     disturbance_term_mm_s=float(lad.disturbance_term))
+            fused, x1, x2 = float(lad.fused_gap_mm), float(lad.td_x1), float(lad.td_x2)
+            z1, z2, z3 = float(lad.z1), float(lad.z2), float(lad.z3)
+            u0, dist = float(lad.u0), float(lad.disturbance_term)
+        else:
+            fused = last_gap if math.isfinite(last_gap) else 0.0
+            x1 = x2 = z1 = z2 = z3 = u0 = dist = 0.0
+        p_term = d_term = 0.0
+        unlimited = self._u_unlimited
         if source == SOURCE_LADRC:
-            z.update(p_term_mm_s=float(lad.p_term),
-                     d_term_mm_s=float(lad.d_term + lad.ff_term))
+            p_term, d_term = float(lad.p_term), float(lad.d_term + lad.ff_term)
             flags |= (LIMIT_VELOCITY if lad.saturated else 0) | (
                 LIMIT_ACCELERATION if lad.rate_limited else 0)
             ext = lad.z2 if lad.order == 1 else lad.z3
             if abs(ext) >= self._ext_limit:
                 flags |= LIMIT_ESO_STATE
+            unlimited = lad.u_unlimited
         elif source in (SOURCE_INTERP, SOURCE_PID):
             pid = self._pid
-            z.update(p_term_mm_s=float(pid.p_term), d_term_mm_s=float(pid.d_term + pid.ff_term))
+            p_term, d_term = float(pid.p_term), float(pid.d_term + pid.ff_term)
             if source == SOURCE_PID:
                 flags |= (LIMIT_VELOCITY if pid.saturated else 0) | (
                     LIMIT_ACCELERATION if pid.rate_limited else 0)
-        unlimited = self._u_unlimited
-        if source == SOURCE_PID:
-            unlimited = self._pid.u_unlimited
-        elif source == SOURCE_LADRC:
-            unlimited = lad.u_unlimited
-        return dict(state=st, followed=self._followed, machining=self._machining,
-                    fault_reason=self._fault_reason, target_gap_mm=self._target_eff, **z,
-                    u_unlimited_mm_s=float(unlimited), velocity_mm_s=self._u,
-                    limit_flags=int(flags),
-                    **self._partner.answers(st, self._followed, self._retracting))
+                unlimited = pid.u_unlimited
+        out = {'state': st, 'followed': self._followed, 'machining': self._machining,
+               'fault_reason': self._fault_reason, 'target_gap_mm': self._target_eff,
+               'fused_gap_mm': fused, 'td_x1_mm': x1, 'td_x2_mm_s': x2, 'eso_z1_mm': z1,
+               'eso_z2': z2, 'eso_z3': z3, 'u0_mm_s': u0, 'p_term_mm_s': p_term,
+               'd_term_mm_s': d_term, 'disturbance_term_mm_s': dist,
+               'u_unlimited_mm_s': float(unlimited), 'velocity_mm_s': self._u,
+               'limit_flags': int(flags)}
+        out.update(self._partner.answers(st, self._followed, self._retracting))
+        return out
 
 
 TICK: dict[int, Callable[[FollowController, tuple], float]] = {
