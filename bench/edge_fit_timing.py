@@ -6,8 +6,9 @@ The fit runs once at the end of each verification, inside the follow node's 2 kH
 bench makes the first call at start-up (``warm_up``, as the follow node does), starts two busy
 loops at normal priority (one per core of the target machine), then, as the follow node's loop
 thread, locks memory and takes SCHED_FIFO 50 when permitted, and times ``--fits`` fits of a
-verification window (110 samples) 5 ms apart. Last line: JSON with the median, p99 and max in
-ms and the real-time settings applied. Target: max well under the 0.5 ms tick.
+verification window (110 samples) 5 ms apart. Last line: JSON with ``fits``, the median, p99
+and max in ms (``median_ms``, ``p99_ms``, ``max_ms``), the first call's ``warm_up_ms``, the
+real-time ``settings`` applied and ``target_max_ms``. Target: max well under the 0.5 ms tick.
 """
 
 from __future__ import annotations

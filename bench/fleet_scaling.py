@@ -1,14 +1,15 @@
 """Fleet tools on the engine: 1 vs 2 workers, per-bag cost vs ``ladrc report``, memory, flags.
 
     scripts/in-env python bench/fleet_scaling.py [--machines 8 --days 5 --bags-per-day 4]
-        [--seed 2] [--fleet DIR]
+        [--bag-s 8] [--seed 2] [--fleet DIR] [--report-bags 3]
 
 Generates a fleet (``ladrc fleet-gen``'s generator on the local cluster; or reads ``--fleet``),
 then in the same run reads it with ``run_fleet`` on a local cluster of 1 and of 2 worker
 processes (no cache), and times ``ladrc report`` (a process per bag, plots included) on three
-of its bags. Judges the flags against the fleet's truth file (which the tool never reads):
-every degraded machine flagged by its rule; every healthy machine flagged listed. The rules'
-limits were set on the seed-1 fleet; the default ``--seed 2`` is another fleet.
+of its bags (``--report-bags``). Judges the flags against the fleet's truth file (which the
+tool never reads): every degraded machine flagged by its rule; every healthy machine flagged
+listed. The rules' limits were set on the seed-1 fleet; the default ``--seed 2`` is another
+fleet.
 Last line JSON: ``bags``, ``wall_s_1_worker``, ``wall_s_2_workers``, ``speedup``,
 ``per_bag_s`` (fleet task, mean), ``report_per_bag_s``, ``worker_peak_rss_mb``,
 ``degraded_flagged``, ``healthy_flagged``, ``all_degraded_flagged``.
@@ -45,6 +46,8 @@ def main() -> int:
     ap.add_argument('--bag-s', type=float, default=8.0)
     ap.add_argument('--seed', type=int, default=2)
     ap.add_argument('--fleet', help='an existing fleet folder (with fleet_truth.json)')
+    ap.add_argument('--report-bags', type=int, default=3,
+                    help='bags to time `ladrc report` on (at least 1) [3]')
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -70,7 +73,7 @@ def main() -> int:
         ok = [r for r in res.rows if r['status'] == 'ok']
         per_bag = sum(r['task_s'] for r in ok) / len(ok)
         report_s = []
-        for r in ok[:3]:
+        for r in ok[:max(1, a.report_bags)]:
             t0 = time.perf_counter()
             subprocess.run([sys.executable, '-m', 'ladrc_tools.cli', 'report', r['bag'], '-o',
                             str(tmp / f'report_{len(report_s)}')], check=True,

@@ -12,8 +12,17 @@ Three parts (docs/identified-plant.md):
 3. The same two scenarios with each coefficient at each end of the notes' ±1σ interval and at
    the two corners (all −, all +), LADRC and PID, with the loop's figures at each end.
 
-Prints tables; the last line is one JSON object.
-Run: python bench/identified_plant.py [--long-s 300]
+Prints tables; the last line is one JSON object: the loop's figures (``ladrc_pm_deg_gain_b0_1``,
+``ladrc_pm_deg_gain_1``, ``ladrc_dm_ms_gain_1``, ``ladrc_fc_hz_gain_1``,
+``ladrc_fc_hz_gain_0_01``, ``slow_pole_rad_s``, ``plant_zero_rad_s``), the headless runs'
+(``plant_rms_mm_ladrc``, ``plant_rms_mm_pid``, ``plant_rms_mm_ladrc_gain_1``,
+``pid_gain_1_collisions``, ``pid_gain_1_fault``, ``ladrc_gain_1_dead_2_fault``), the interval's
+error RMS range per scenario and mode (``identified_plant_ladrc_rms_range_mm``, ...), with
+``--long-s`` the long run's (``long_s``, ``long_error_rms_mm``,
+``long_last10s_mean_command_mm_s``), and ``runtime_s``.
+Run: python bench/identified_plant.py [--long-s 300] [--quick]
+``--quick``: every headless run cut to its first 0.5 s and part 3 on the nominal plant only, a
+smoke test of the bench (its figures are not the scenarios').
 """
 
 import argparse
@@ -42,6 +51,7 @@ from ladrc_tools.offline.identified_plant import (  # noqa: E402
 from ladrc_tools.offline.suite import law_only  # noqa: E402
 
 SCENARIOS = ('identified_plant', 'identified_step')
+RUN_S: float | None = None  # --quick: every headless run cut to this length [s]
 KEYS = ('error_rms_mm', 'error_p2p_mm', 'settling_time_s', 'overshoot_pct', 'collisions')
 
 
@@ -55,6 +65,8 @@ def with_b0(params: ControllerParams, b0: float) -> ControllerParams:
 def sim(name: str, mode: str, params: ControllerParams, **axis) -> dict:
     sc = load_scenario(name)
     sc = dataclasses.replace(sc, axis=dataclasses.replace(sc.axis, **axis))
+    if RUN_S is not None:
+        sc = dataclasses.replace(sc, duration_s=min(sc.duration_s, RUN_S))
     ctrl = FollowController(params, mode=mode)
     res = dict(summary(run(sc, ctrl, record_internals=True)))
     res['fault'] = ctrl.fault_reason or ''
@@ -71,7 +83,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--long-s', type=float, default=0.0,
                     help='also follow a flat sheet this long on the nominal plant (slow mode)')
+    ap.add_argument('--quick', action='store_true',
+                    help='runs cut to 0.5 s, part 3 on the nominal plant only (a smoke test)')
     args = ap.parse_args()
+    global RUN_S
+    if args.quick:
+        RUN_S = 0.5
     t0 = time.perf_counter()
     # the laws on the identified plant: the edge verification's moves up off (docs/safety.md
     # has what they cost on the shipped scenarios)
@@ -148,7 +165,7 @@ def main() -> None:
     print(f'  {"case":8s} {"zero":>8s} {"poles":>22s} {"PM":>6s} {"slow":>8s} '
           + ' '.join(f'{s[:14] + " " + m:>20s}' for s in SCENARIOS for m in ('ladrc', 'pid')))
     worst = {}
-    for label, coeffs in interval_cases():
+    for label, coeffs in interval_cases()[:1 if args.quick else None]:
         lf = loop_figures(base, coeffs, GAIN_B0_1, 'ladrc')
         poles = coeffs.poles_rad_s()
         cells = []

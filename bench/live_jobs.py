@@ -11,11 +11,13 @@ Must hold (issues 23, 24): every job runs to its end; 0 contacts except the decl
 part's (which ends in the retract and a feed hold); ``min_gap_over_target_cutting`` >= 0.7.
 
 ``--separate-cnc``: the CNC node plays the CNC (three processes; the headless run then is
-``ladrc job --separate-cnc``, and in lock step equal to it).
+``ladrc job --separate-cnc``, and in lock step equal to it). Each bring-up runs on a DDS domain
+drawn at random from 120..200, or on ``--domain-id`` (a test's isolated domain).
 
 Run: scripts/in-env python bench/live_jobs.py [--jobs plate_holes tipping_pair] [--lockstep]
-     [--separate-cnc]
-The last line of output is one JSON object.
+     [--separate-cnc] [--domain-id N]
+The last line of output is one JSON object: ``lockstep``, ``separate_cnc``, ``jobs`` (per job:
+``live`` and ``headless`` figures, ``declared_tipping``, ``verdict``) and ``all_ok``.
 """
 
 import argparse
@@ -41,16 +43,20 @@ FIGURES = ('finished', 'job_time_s', 'contacts', 'faults', 'pierces',
 BAR = 0.7
 
 
-def live(name: str, folder: Path, lockstep: bool, separate: bool = False) -> dict:
+def live(name: str, folder: Path, lockstep: bool, separate: bool = False,
+         domain_id: int | None = None) -> dict:
     """Run one job live with bringup; return its figures (bringup's last line)."""
+    domain = random.randint(120, 200) if domain_id is None else domain_id
     cmd = ['bringup', '--job', name, '--bag', str(folder / f'{name}.bag'),
-           '--logs', str(folder / f'{name}.logs'), '--domain-id', str(random.randint(120, 200)),
+           '--logs', str(folder / f'{name}.logs'), '--domain-id', str(domain),
            '--timeout', '900'] + (['--lockstep', '--unpaced'] if lockstep else []) + (
                ['--separate-cnc'] if separate else [])
     res = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ),
                          check=False)
     lines = res.stdout.strip().splitlines()
     if res.returncode != 0 or not lines:
+        print(f'{name}: bringup exit {res.returncode}: {res.stderr.strip()[-2000:]}',
+              file=sys.stderr, flush=True)
         return {'finished': False, 'aborted': f'bringup exit {res.returncode}: '
                 f'{res.stderr.strip()[-300:]}'}
     return json.loads(lines[-1])
@@ -75,13 +81,15 @@ def main() -> int:
                     help='lock step, unpaced (deterministic: equal to headless)')
     ap.add_argument('--separate-cnc', action='store_true',
                     help='the CNC node plays the CNC (bringup --separate-cnc)')
+    ap.add_argument('--domain-id', type=int, default=None,
+                    help='ROS_DOMAIN_ID of every bring-up [random 120..200 per job]')
     a = ap.parse_args()
     rows = {}
     with tempfile.TemporaryDirectory(prefix='live-jobs-') as tmp:
         for name in a.jobs:
             job = find_job(name)
             head = run_headless(job, [], separate_cnc=a.separate_cnc).figures
-            got = live(name, Path(tmp), a.lockstep, a.separate_cnc)
+            got = live(name, Path(tmp), a.lockstep, a.separate_cnc, a.domain_id)
             row = {'live': {k: got.get(k) for k in FIGURES + ('realtime_x',)},
                    'headless': {k: head.get(k) for k in FIGURES},
                    'declared_tipping': bool(job.tip_parts)}

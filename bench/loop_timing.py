@@ -2,6 +2,7 @@
 
     scripts/in-env python bench/loop_timing.py [--duration 60] [--loops deadline,sync]
                                                [--recorder both|with|without] [--lockstep 20]
+                                               [--floor 10] [--domain-id N]
 
 1. The floor: a bare rclpy 2 kHz steady timer on an EventsExecutor (spin_once loop),
    publishing one Float64 per tick, alone, for ``--floor`` seconds.
@@ -23,8 +24,14 @@ never received (seq gaps of what the controller used, less those it received: th
 (a tick on the same sample as the tick before), handled later than one period (the tick ran
 more than h after the sample arrived); sensor → command latency p50/p99 (the sample's stamp at
 the sim → the command's stamp at the controller plus its compute time: one system clock).
-Last line: one JSON object, the default loop's figures at top level and every run under
-``runs``.
+Last line: one JSON object, the default loop's figures at top level (``rate_hz``,
+``period_p99_us``, ``latency_p99_ms``, ``fault_ticks``, ...) with ``duration_s``,
+``bare_timer_rate_hz``, ``bare_timer_period_p99_us``, ``lockstep_realtime_x`` and
+``lockstep_alone_realtime_x`` (null without ``--lockstep``), every run under ``runs``, the
+lock-step runs under ``lockstep`` and ``lockstep_alone``.
+
+Each node set runs on a DDS domain of its own, drawn at random, or on ``--domain-id`` (a test's
+isolated domain: tests/test_benches.py).
 """
 
 from __future__ import annotations
@@ -102,8 +109,12 @@ def bare_timer(seconds: float) -> dict[str, float]:
 
 
 def run_node_set(folder: Path, duration_s: float, loop: str, recorder: str,
-                 lockstep: bool = False) -> tuple[Path, dict[str, str]]:
-    """Play the scenario live with the bring-up's node set; return the bag and the logs."""
+                 lockstep: bool = False,
+                 domain_id: int | None = None) -> tuple[Path, dict[str, str]]:
+    """Play the scenario live with the bring-up's node set; return the bag and the logs.
+
+    The node set runs on ROS_DOMAIN_ID ``domain_id`` (default: one drawn from 1..101).
+    """
     from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
 
     scenario = folder / 'loop_timing.yaml'
@@ -116,7 +127,8 @@ def run_node_set(folder: Path, duration_s: float, loop: str, recorder: str,
             spec.parameters['topics'] = ("['follow/status', 'axis/capacitive_height', "
                                          "'/diagnostics']")
     logs = folder / f'logs_{loop}_{recorder}'
-    up = Bringup(specs, isolated_env(random.randint(1, 101)), logs)
+    up = Bringup(specs, isolated_env(random.randint(1, 101) if domain_id is None
+                                     else domain_id), logs)
     try:
         up.start()
         if up.wait('ladrc_sim', 120 + 10 * duration_s) is None:
@@ -209,9 +221,11 @@ def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
     }
 
 
-def lockstep_speed(folder: Path, duration_s: float, recorder: str = 'with') -> dict[str, float]:
+def lockstep_speed(folder: Path, duration_s: float, recorder: str = 'with',
+                   domain_id: int | None = None) -> dict[str, float]:
     """Lock step (``recorder`` 'with' or 'none'): simulated over wall seconds of the sim."""
-    bag, logs = run_node_set(folder, duration_s, 'lockstep', recorder, lockstep=True)
+    bag, logs = run_node_set(folder, duration_s, 'lockstep', recorder, lockstep=True,
+                             domain_id=domain_id)
     lines = [line for line in logs['ladrc_sim'].splitlines() if '[ladrc_sim]: scenario' in line]
 
     def stamp(line: str) -> float:
@@ -236,6 +250,8 @@ def main() -> int:
     ap.add_argument('--recorder', default='both', choices=['both', 'with', 'without'])
     ap.add_argument('--lockstep', type=float, default=20.0,
                     help='simulated seconds of the lock-step speed run; 0: none [20]')
+    ap.add_argument('--domain-id', type=int, default=None,
+                    help='ROS_DOMAIN_ID of the node sets [random 1..101, a new one per run]')
     args = ap.parse_args()
     os.environ.setdefault('PYTHONUNBUFFERED', '1')
     floor = bare_timer(args.floor)
@@ -247,7 +263,8 @@ def main() -> int:
             for rec in recs:
                 folder = Path(tmp) / f'{loop}_{rec}'
                 folder.mkdir()
-                bag, logs = run_node_set(folder, args.duration, loop, rec)
+                bag, logs = run_node_set(folder, args.duration, loop, rec,
+                                         domain_id=args.domain_id)
                 runs[f'{loop}/{rec}_recorder'] = figures(bag, logs)
                 print(f'{loop}, {rec} recorder: {runs[f"{loop}/{rec}_recorder"]}',
                       file=sys.stderr)
@@ -255,11 +272,11 @@ def main() -> int:
         if args.lockstep > 0:
             folder = Path(tmp) / 'lockstep'
             folder.mkdir()
-            lock = lockstep_speed(folder, args.lockstep)
+            lock = lockstep_speed(folder, args.lockstep, domain_id=args.domain_id)
             print(f'lock step: {lock}', file=sys.stderr)
             folder = Path(tmp) / 'lockstep_alone'
             folder.mkdir()
-            alone = lockstep_speed(folder, args.lockstep, 'none')
+            alone = lockstep_speed(folder, args.lockstep, 'none', domain_id=args.domain_id)
             print(f'lock step, no recorder: {alone}', file=sys.stderr)
     main_run = runs[next(iter(runs))]
     out = {'duration_s': args.duration, **main_run,

@@ -9,8 +9,14 @@ results agree with 0.05 ms to 6 digits), i.e. the
 observers are the paper's continuous ones (not a discretized firmware observer), and
 the compensated estimate z + D is formed at each sample from the same-time e1 = y − z1.
 
-Prints a table beside the paper's numbers; the last line is one JSON object.
-Run: python bench/paper_eso_compensator.py [--h 1e-4] [--t-end 10]
+Prints a table beside the paper's numbers; the last line is one JSON object: the max |x2
+error| of each observer for v = 0 (``leso_x2_err``, ``leso_d_x2_err``, ``neso_x2_err``,
+``neso_d_x2_err``), the same with the suffixes ``_away`` (v = 0 away from the kinks),
+``_step`` and ``_noise``, the ratios without / with D (``leso_ratio_zero``,
+``neso_ratio_zero``, ... ``_away``, ``_step``, ``_noise``), the paper's figures (``paper_``
+and the name), ``h_s``, ``t_end_s`` and ``runtime_s``.
+Run: python bench/paper_eso_compensator.py [--h 1e-4] [--t-end 10] [--settle 2]
+(the step case's window starts at 5 s: ``--t-end`` must be past it)
 """
 
 import argparse

@@ -8,8 +8,17 @@ uncompensated observation error of state i, for the 4-state observer (n = 3, ban
 (``eso.continuous_matrices``) through scipy.signal, are checked against eq. 32 and against the
 sampled ``LinearESO(compensate=True)``, and are plotted as Fig. 2 (docs/paper-eso-frequency.md).
 
-Prints a table beside the paper's figures; the last line is one JSON object.
+Prints a table beside the paper's figures; the last line is one JSON object: the paper's
+figures (``omega_lost_paper``, ``phi_lost_paper_deg``, ``omega_weak_paper``,
+``phi_weak_paper_deg``, ``a_weak_paper``) beside this reproduction's (``omega_0p1db_i2`` ..
+``_i4``, ``phi_at_13_3_i3_deg``, ``phi_at_13_3_i4_deg``, ``omega_weak_phase_i4``,
+``omega_weak_is_10_pow_0_71``, ``phi_at_5_1286_i4_deg``, ``a_weak_reproduced``,
+``a_db_at_5_1286``, ``a_db_spread_at_5_1286``, ``max_rel_deviation``), the true form's peaks
+(``true_peak_db_i3``, ``true_peak_omega_i3``, ``true_peak_db_i4``, ``true_peak_omega_i4``), the
+checks (``ss_minus_eq32_max``, ``ss_minus_true_max``, ``leso_measured_minus_true_max``: NaN
+with ``--no-measure``) and ``runtime_s``.
 Run: python bench/paper_eso_frequency.py [--plot docs/img/paper_eso_frequency.png] [--no-measure]
+(``--plot ''``: no plot)
 """
 
 import argparse

@@ -1,6 +1,6 @@
 """The notes' experiments as the notes ran them, beside the notes' figures (issue 13).
 
-    scripts/in-env python bench/seed_experiments.py [--jobs 2]
+    scripts/in-env python bench/seed_experiments.py [--jobs 2] [--quick]
 
 Runs ``ladrc_tools.offline.seed_experiments`` (headless, 2 kHz): the 5 Hz sine on the
 target (SIN_GEN) with the "9.8 Hz" and "14.6 Hz" observers; the notes' steps run by the
@@ -11,7 +11,9 @@ small-signal gains; the gated Kalman filter in the loop. Prints one table per ex
 last line is JSON with ``sine5_td_ratio``, ``sine5_gap_ratio_9_8hz``,
 ``sine5_gap_ratio_14_6hz``, ``edge_step_chatter_9_8hz``, ``edge_step_chatter_14_6hz``
 (command RMS above 20 Hz during the LADRC-run half-off 3->1 mm step, mm/s),
-``thin_sheet_ladrc_range_mm``, ``thin_sheet_pid_range_mm`` (the notes' settings) and the rows.
+``thin_sheet_ladrc_range_mm``, ``thin_sheet_pid_range_mm`` (the notes' settings), ``runs``,
+``wall_s`` and the rows (``rows``). ``--quick``: only the experiments those figures come from
+and one of each other table (8 runs), a smoke test of the bench.
 """
 
 from __future__ import annotations
@@ -61,6 +63,20 @@ def jobs() -> list[tuple]:
     return out
 
 
+def quick_jobs() -> list[tuple]:
+    """Return the experiments of the JSON's figures and the first of each other kind."""
+    def wanted(job: tuple) -> bool:
+        name, args = job
+        return (name == 'sine_on_target'
+                or (name == 'step' and args[0] == 'edge 3->1 mm (half off)' and not args[2])
+                or (name == 'thin_sheet' and args[0].startswith(('notes LADRC (270, 24300; b0 '
+                                                                  f'{se.B0_UNIT_MAPPING:g})',
+                                                                  'notes PID'))))
+    todo = jobs()
+    out = [j for j in todo if wanted(j)]
+    return out + [next(j for j in todo if j[0] == kind) for kind in ('nonlinear', 'kalman')]
+
+
 def run_job(job: tuple) -> dict:
     """Run one experiment in this process."""
     name, args = job
@@ -86,9 +102,11 @@ def table(rows: list[dict], keys: list[str]) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--jobs', type=int, default=2, help='worker processes [2]')
+    ap.add_argument('--quick', action='store_true',
+                    help="only the JSON's experiments and one of each table (a smoke test)")
     a = ap.parse_args()
     t0 = time.perf_counter()
-    todo = jobs()
+    todo = quick_jobs() if a.quick else jobs()
     with ProcessPoolExecutor(max_workers=max(1, a.jobs)) as pool:
         rows = list(pool.map(run_job, todo, chunksize=2))
     by = {}

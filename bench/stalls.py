@@ -28,7 +28,10 @@ plus whether a garbage collection overlapped it. Also: what ``apply_realtime`` g
 collections, involuntary context switches, the machine's steal time and the CPU used by other
 processes on the machine during the condition (a shared machine: someone else's load shows).
 
-Human lines go to stderr; the last stdout line is one JSON object (every condition).
+Human lines go to stderr; the last stdout line is one JSON object: ``date``, ``cpus``,
+``seconds``, ``stall_max_fifo_ms``, ``stall_max_normal_ms``, ``STALL_MAX_S``,
+``STALL_MAX_NORMAL_S`` (null without a condition of that scheduler) and every condition's
+figures under ``conditions``.
 
 ``MEASURED`` below keeps the figures of a full run here; ``STALL_MAX_S`` and
 ``STALL_MAX_NORMAL_S`` are what the real-time tests import as the stall they must tolerate.

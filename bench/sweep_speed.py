@@ -1,6 +1,6 @@
 """Batch closed loop speed: N parameter sets x the batchable scenario library (issue 14).
 
-    scripts/in-env python bench/sweep_speed.py [--sets 1000]
+    scripts/in-env python bench/sweep_speed.py [--sets 1000] [--quick]
 
 The LADRC core on numpy rows (``LADRC.batch``) in the batch closed loop
 (``ladrc_sim.headless.batch.run_batch``): every library scenario the batch models (those that
@@ -8,7 +8,9 @@ start followed; see its docstring: the approaches and the fault scenario are not
 ``--sets`` random parameter sets at once (observer bandwidth 30-150 rad/s, kp 3-30 1/s, b0
 0.7-1.4). Also one scenario (``sine_5hz``) at N = 1, 100 and 1000 rows. Last line JSON: ``n_sets``,
 ``scenarios``, ``wall_s``, ``aggregate_realtime_x`` (simulated seconds of all rows per wall
-second; target >= 1500 on this 2-core class, wall <= 60 s), ``single_scenario``.
+second; target >= 1500 on this 2-core class, wall <= 60 s), ``single_scenario``,
+``worst_error_rms_mm`` (per scenario). ``--quick``: one scenario (``sine_5hz``) and the single
+scenario at N = 1 only, a smoke test of the bench.
 """
 
 from __future__ import annotations
@@ -47,11 +49,13 @@ def parameter_sets(n: int, seed: int = 1) -> list[ControllerParams]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--sets', type=int, default=1000)
+    ap.add_argument('--quick', action='store_true',
+                    help='sine_5hz only, the single scenario at N = 1 only (a smoke test)')
     a = ap.parse_args()
     sets = parameter_sets(a.sets)
-    names = batchable_scenarios()
+    names = ['sine_5hz'] if a.quick else batchable_scenarios()
     single = {}
-    for n in (1, 100, 1000):
+    for n in (1,) if a.quick else (1, 100, 1000):
         res = run_batch('sine_5hz', LADRC.batch(sets[:n] if n <= len(sets)
                                                  else parameter_sets(n)), n)
         single[str(n)] = {'wall_s': round(res.wall_s, 2), 'realtime_x': round(res.realtime_x, 1)}
