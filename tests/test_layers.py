@@ -7,6 +7,8 @@ Read from the source files (ast), nothing is imported:
   the controller);
 * ``ladrc_follow`` (the controller) imports none of ``ladrc_sim``, ``ladrc_tools``, rosbags,
   matplotlib, scipy;
+* ``ladrc_cia402`` (the CiA 402 drive, machine side) imports neither ``ladrc_sim`` nor
+  ``ladrc_tools``; its CANopen layer (``ds402``, ``emcy``, ``units``, ``mapping``) no rclpy;
 * each package's package.xml has a ``<depend>`` or ``<exec_depend>`` for every third-party
   top-level module its Python files import (including imports inside functions).
 """
@@ -22,9 +24,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
-PACKAGES = ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
+PACKAGES = ('ladrc_contract', 'ladrc_cia402', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
 PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning',
-                'fleet')
+                'fleet', 'cia402')
+CIA402_PURE = ('ds402.py', 'emcy.py', 'units.py', 'mapping.py')  # ladrc_cia402's plain layer
 
 # top-level module -> rosdep key / ROS package name in package.xml
 DEPEND_KEY = {
@@ -42,6 +45,9 @@ DEPEND_KEY = {
     'pyarrow': 'python3-pyarrow-pip',
     'ladrc_msgs': 'ladrc_msgs',
     'ladrc_contract': 'ladrc_contract',
+    'ladrc_cia402': 'ladrc_cia402',
+    'canopen': 'python3-canopen-pip',  # pip on every path (requirements/stock.txt)
+    'can': 'python3-can',
     'std_msgs': 'std_msgs',
     'diagnostic_msgs': 'diagnostic_msgs',
     'rcl_interfaces': 'rcl_interfaces',
@@ -207,3 +213,13 @@ def test_the_contract_package_imports_no_node_package():
     offenders = {_rel(p): sorted(_imports(p) & {'ladrc_follow', 'ladrc_sim', 'ladrc_tools'})
                  for p in _py_files('ladrc_contract')}
     assert not {k: v for k, v in offenders.items() if v}
+
+
+def test_the_cia402_package_is_machine_side():
+    """ladrc_cia402 is what a real drive runs on: it never imports the simulator or the tools."""
+    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_sim', 'ladrc_tools'})
+                 for p in _py_files('ladrc_cia402')}
+    assert not {k: v for k, v in offenders.items() if v}
+    pure = [p for p in _py_files('ladrc_cia402') if p.name in CIA402_PURE]
+    assert len(pure) == len(CIA402_PURE)
+    assert not [_rel(p) for p in pure if 'rclpy' in _imports(p)]

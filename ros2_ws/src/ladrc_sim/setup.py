@@ -11,12 +11,14 @@ setup(
     # The scenario library ships inside the Python package (importlib.resources finds it) and
     # under share/ for users who look for it the ROS way.
     package_data={'ladrc_sim.headless': ['scenarios/*.yaml'],
-                  'ladrc_sim.job': ['jobs/*.yaml', 'jobs/*.dxf', 'jobs/*.LICENSE']},
+                  'ladrc_sim.job': ['jobs/*.yaml', 'jobs/*.dxf', 'jobs/*.LICENSE'],
+                  'ladrc_sim.cia402': ['*.eds']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/scenarios', glob('ladrc_sim/headless/scenarios/*.yaml')),
         ('share/' + package_name + '/jobs', glob('ladrc_sim/job/jobs/*')),
+        ('share/' + package_name + '/cia402', glob('ladrc_sim/cia402/*.eds')),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

@@ -2,7 +2,7 @@
 
 :class:`DriveBridge` is what the headless runner steps in the sim node: at each 0.5 ms deadline
 it takes the velocity commands that arrived (straight from the reader, raw), applies the one
-commander rule (:mod:`.commander_lock`) and the drive watchdog (no command for
+commander rule (:mod:`ladrc_contract.commander_lock`) and the drive watchdog (no command for
 ``watchdog_timeout_s`` -> quick stop and a drive fault with a readable reason), has the node
 publish the tick's samples, and returns the latest command (one tick of transport delay, as on a
 fieldbus). Lock step (``lockstep``): it publishes step k and waits for the command answering k
@@ -18,12 +18,12 @@ import threading
 import time
 from typing import Any, NamedTuple
 
+from ladrc_contract.commander_lock import CommanderLock, Identity
 from ladrc_contract.loop_io import SampleWait
 
 from ..headless.scenario import (
     DRIVE_FAULT_REASON,
 )
-from .commander_lock import CommanderLock, Identity
 
 
 class _Command(NamedTuple):

@@ -17,10 +17,11 @@ Like a drive, it stops the axis when commands stop: no command for longer than
 brakes at its maximum deceleration, not through its velocity lag) and a drive fault with a
 readable reason, until commands are back for ``watchdog_recover_s``.
 
-One commander (:mod:`.commander_lock`): the drive executes the commands of one commander only;
-the first foreign command quick-stops the axis and faults the drive with a reason naming both
-senders, until ``axis/reset_drive`` (``ResetFault``). Every drive cycle counts whose command it
-executed (``cycles_by_commander`` on /diagnostics and in the log at the end).
+One commander (``ladrc_contract.commander_lock``): the drive executes the commands of one
+commander only; the first foreign command quick-stops the axis and faults the drive with a
+reason naming both senders, until ``axis/reset_drive`` (``ResetFault``). Every drive cycle
+counts whose command it executed (``cycles_by_commander`` on /diagnostics and in the log at
+the end).
 
 A sample is published only when the runner has a fresh one: during a ``sensor_dropout`` or
 ``encoder_dropout`` nothing is sent, as a driver sends nothing (seq counts published samples).
@@ -47,6 +48,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
+from ladrc_contract.commander_lock import describe
 from ladrc_contract.loop_io import LoopNode
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
@@ -90,7 +92,6 @@ from ..job.cnc import COMMANDS as CNC_COMMANDS
 from ..job.jobfile import JobError, find_job, run_text
 from ..job.runner import run_job
 from ..models.sensor import oscillator_hz_scalar
-from .commander_lock import describe
 from .drive_bridge import COMMAND_FIELDS, DriveBridge, LockstepAbort, StopSimulation
 from .job_drive import JobDrive
 from .remote_cnc import RemoteCnc

@@ -1,0 +1,1 @@
+"""CiA 402 drive over CANopen, the master side (plain Python: no rclpy in this layer)."""

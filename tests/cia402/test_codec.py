@@ -1,0 +1,117 @@
+"""The drive's integer units, the EMCY text, the PDO packing and the SDO mapping sequence."""
+
+from __future__ import annotations
+
+import math
+
+from ladrc_cia402 import emcy, mapping
+from ladrc_cia402.units import INT32_MAX, INT32_MIN, AnalogScale, DriveUnits
+import pytest
+
+
+# ---- units --------------------------------------------------------------------------------------
+def test_commands_round_toward_zero_never_bigger():
+    u = DriveUnits(1000.0, 1000.0)
+    assert u.velocity_command(2.0) == 2000
+    assert u.velocity_command(1.9999) == 1999
+    assert u.velocity_command(-1.9999) == -1999  # downward: not -2000 (not faster down)
+    assert u.velocity_command(-0.0004) == 0
+    assert u.velocity_command(math.nan) == 0
+    assert u.velocity_command(math.inf) == INT32_MAX
+    assert u.velocity_command(-1e12) == INT32_MIN
+    for x in (-123.4567, -0.3, -5e-4, 0.29, 7.0007, 199.9999):
+        c = u.velocity_command(x)
+        assert abs(c) <= abs(x) * 1000.0 and abs(x * 1000.0 - c) < 1.0
+        assert u.position_command(x) == int(x * 1000.0)
+
+
+def test_readings_both_ways():
+    u = DriveUnits.from_velocity_factor(increments_per_mm=4096 / 5.0,
+                                        increments_per_s_per_unit=4096 / 600.0)  # 0.1 rpm
+    # 5 mm per revolution of 4096 increments: 1 rev/s = 5 mm/s = 600 units of 0.1 rpm
+    assert u.velocity_mm_s(600) == pytest.approx(5.0)
+    assert u.velocity_command(5.0) in (599, 600)
+    assert u.position_mm(4096) == pytest.approx(5.0)
+    assert u.position_increments(5.0) == 4096
+    assert u.velocity_units(-5.0) == -600
+    with pytest.raises(ValueError):
+        DriveUnits(0.0, 1.0)
+    with pytest.raises(ValueError):
+        DriveUnits(1.0, math.nan)
+
+
+def test_analog_scale():
+    a = AnalogScale(1000.0)
+    assert a.counts(1.2345) == 1234 or a.counts(1.2345) == 1235
+    assert a.mm(a.counts(2.0)) == (2.0, True)
+    assert a.counts(3.0, valid=False) == a.invalid
+    mm, valid = a.mm(a.invalid)
+    assert math.isnan(mm) and not valid
+    assert a.counts(1e9) == 0x7FFE  # saturates below the invalid mark
+
+
+# ---- EMCY --------------------------------------------------------------------------------
+@pytest.mark.parametrize('code, text', [
+    (0x8611, 'EMCY 0x8611 following error'),
+    (0x8250, 'EMCY 0x8250 RPDO timeout'),
+    (0x8130, 'EMCY 0x8130 life guard or heartbeat error'),
+    (0x2310, 'EMCY 0x2310 continuous over current'),
+    (0x3210, 'EMCY 0x3210 DC link over voltage'),
+    (0x3220, 'EMCY 0x3220 DC link under voltage'),
+    (0x4210, 'EMCY 0x4210 excess temperature device'),
+    (0x8210, 'EMCY 0x8210 PDO not processed due to length error'),
+    (0x8110, 'EMCY 0x8110 CAN overrun (objects lost)'),
+    (0x8140, 'EMCY 0x8140 recovered from bus off'),
+    (0x8200, 'EMCY 0x8200 protocol error'),
+    (0x1000, 'EMCY 0x1000 generic error'),
+    (0x2399, 'EMCY 0x2399 current'),  # unknown code: its class
+    (0x4321, 'EMCY 0x4321 temperature'),
+    (0x0123, 'EMCY 0x0123 unknown error'),
+])
+def test_emcy_text(code, text):
+    assert emcy.fault_text(code) == text
+
+
+def test_emcy_text_details_and_frame_round_trip():
+    assert emcy.fault_text(0x8250, 0x11) == 'EMCY 0x8250 RPDO timeout (register 0x11)'
+    assert emcy.fault_text(0x8250, 0x01) == 'EMCY 0x8250 RPDO timeout'
+    assert emcy.fault_text(0x8200, 0x11, b'2MSTR') == \
+        'EMCY 0x8200 protocol error (register 0x11) [manufacturer 324d535452]'
+    frame = emcy.pack_emcy(0x8611, 0x21, b'\x01\x02')
+    assert len(frame) == 8
+    assert emcy.unpack_emcy(frame) == (0x8611, 0x21, b'\x01\x02\x00\x00\x00')
+    with pytest.raises(ValueError):
+        emcy.unpack_emcy(frame[:7])
+
+
+# ---- PDOs --------------------------------------------------------------------------------
+@pytest.mark.parametrize('pdo, values', [
+    (mapping.RPDO1, (0x000F, -2000)),
+    (mapping.RPDO1, (0xFFFF, INT32_MAX)),
+    (mapping.TPDO1, (0x0637, INT32_MIN)),
+    (mapping.TPDO2, (-1, -0x8000)),
+    (mapping.TPDO2, (123456, 0x7FFF)),
+])
+def test_pdo_pack_round_trip(pdo, values):
+    data = mapping.pack(pdo.entries, values)
+    assert len(data) == mapping.size(pdo.entries) <= 8
+    assert mapping.unpack(pdo.entries, data) == values
+
+
+def test_pdo_layout_is_little_endian_in_mapping_order():
+    assert mapping.pack(mapping.RPDO1.entries, (0x000F, -2)) == bytes.fromhex('0f00feffffff')
+    with pytest.raises(ValueError):
+        mapping.unpack(mapping.RPDO1.entries, bytes(5))  # a frame of the wrong length
+    with pytest.raises(ValueError):  # 10 bytes: no CAN PDO
+        mapping.Pdo('tpdo', 3, 0x380, 1, (mapping.STATUSWORD, mapping.POSITION_ACTUAL,
+                                          mapping.VELOCITY_ACTUAL))
+
+
+def test_sdo_mapping_sequence():
+    w = mapping.sdo_writes(mapping.RPDO1, node_id=5)
+    assert w == [(0x1400, 1, 0x80000205), (0x1600, 0, 0), (0x1600, 1, 0x60400010),
+                 (0x1600, 2, 0x60FF0020), (0x1600, 0, 2), (0x1400, 2, 1), (0x1400, 5, 10),
+                 (0x1400, 1, 0x205)]
+    t2 = mapping.sdo_writes(mapping.TPDO2, node_id=5)
+    assert (0x1A01, 2, 0x64010110) in t2 and t2[-1] == (0x1801, 1, 0x285)
+    assert mapping.decode_entry(0x64010110) == (0x6401, 1, 16)
