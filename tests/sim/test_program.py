@@ -74,12 +74,14 @@ def test_a_drawing_without_units_is_refused_naming_the_file(tmp_path, units):
     with pytest.raises(ProgramError) as exc:
         load_program(path, kerf_mm=0.2)
     text = one_line(exc, path)
-    assert 'drawing units missing' in text and '$INSUNITS=' in text and 'millimetres' in text
+    assert 'drawing units missing: R2010 (AC1024) file ' in text
+    assert ('with $INSUNITS=0 (unitless)' if units == 0 else 'without $INSUNITS in its HEADER'
+            ) in text and text.endswith('give dxf_units: mm|cm|m|in in the job file')
 
 
 def test_an_unsupported_unit_is_refused(tmp_path):
     path = drawing(tmp_path, square_with_hole, 2)  # feet
-    with pytest.raises(ProgramError, match=r'units not supported \(\$INSUNITS=2\)'):
+    with pytest.raises(ProgramError, match=r'units not supported \(\$INSUNITS=2, feet\)'):
         load_program(path, kerf_mm=0.2)
 
 

@@ -8,7 +8,8 @@ overrides of the follow controller, ``name: value``), ``sensor`` (models/sensor.
 ``SensorParams``), ``tip_parts`` and ``tip_rise_mm`` (parts that tip up when cut free),
 ``start_xy`` and ``start_height_mm``, ``dxf_origin_mm`` (where the drawing's (0, 0) lies on
 the sheet: the CNC's work offset), ``seed``, and ``limits`` (where the job's geometry makes
-the safety bar impossible: the bound that proves it, docs/job-world.md). Every problem is one
+the safety bar impossible: the bound that proves it, docs/job-world.md); how the DXF is read,
+declared once in :class:`DrawingKeys`: ``dxf_units`` and ``layers``. Every problem is one
 line naming the file and the key (:class:`JobError`).
 """
 
@@ -20,6 +21,7 @@ from pathlib import Path
 import typing
 from typing import Any
 
+from ladrc_contract.schema import param, value_problems
 from shapely.geometry import box
 import yaml
 
@@ -27,11 +29,43 @@ from ..models.axis import ParamError
 from ..models.sensor import SensorParams
 from ..models.sheet_xy import SurfaceParams
 from .cnc import CncSettings
-from .program import Program, ProgramError, load_program
+from .program import UNIT_MM, Program, ProgramError, load_program
 
 
 class JobError(ValueError):
     """A job file is malformed; the message is one line naming the file and the key."""
+
+
+@dataclass(frozen=True)
+class DrawingKeys:
+    """The job file's keys on how its DXF is read (top-level keys; job/program.py)."""
+
+    dxf_units: str | None = param(
+        None, '', "the drawing's units where the DXF does not say them (an R12 file, no "
+        '$INSUNITS or $INSUNITS=0); where it does, they must agree', choices=tuple(UNIT_MM))
+    layers: tuple[str, ...] = param(
+        (), '', 'the DXF layers read, by name, case-insensitive (empty: all); open contours '
+        'on any layer read are refused (there is no marking layer)')
+
+    @classmethod
+    def read(cls, data: dict, path: Path) -> DrawingKeys:
+        """Return the keys of job file ``data``: one line naming the key if one is bad."""
+        units = data.get('dxf_units')
+        if units is not None:
+            spec = next(f for f in fields(cls) if f.name == 'dxf_units').metadata['spec']
+            bad = value_problems('dxf_units', str, units, spec)
+            if bad:
+                raise JobError(f'{path}: dxf_units: {units!r}: one of {spec.range_text()} '
+                               "(the drawing's units where the DXF does not say them)")
+        layers = data.get('layers')
+        if layers is None:
+            layers = []
+        if isinstance(layers, str):
+            layers = [layers]
+        if not isinstance(layers, list) or any(
+                isinstance(x, (bool, dict, list)) or x is None or str(x) == '' for x in layers):
+            raise JobError(f'{path}: layers: a list of DXF layer names, got {layers!r}')
+        return cls(dxf_units=units, layers=tuple(str(x) for x in layers))
 
 
 @dataclass(frozen=True)
@@ -59,6 +93,7 @@ class Job:
     dxf_origin_mm: tuple[float, float] = (0.0, 0.0)
     seed: int = 1
     limits: dict[str, Any] = field(default_factory=dict)
+    drawing: DrawingKeys = DrawingKeys()
 
     def plate(self):
         """Return the plate's outline (a rectangle from the origin)."""
@@ -74,7 +109,9 @@ class Job:
                                    micro_joint_mm=self.micro_joint_mm,
                                    micro_joints_per_part=self.micro_joints_per_part,
                                    sheet_mm=(self.width_mm, self.height_mm),
-                                   origin_mm=self.dxf_origin_mm)
+                                   origin_mm=self.dxf_origin_mm,
+                                   units=self.drawing.dxf_units,
+                                   layers=self.drawing.layers or None)
         except ProgramError as exc:
             raise JobError(f'{self.path}: {exc}') from None
         object.__setattr__(self, '_program', program)  # a frozen job: its program, once
@@ -135,7 +172,7 @@ def _section(cls: type, data: Any, where: str) -> Any:
 
 _TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
         'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'dxf_origin_mm', 'seed',
-        'limits')
+        'limits', *(f.name for f in fields(DrawingKeys)))
 
 
 def _xy(data: dict, key: str, path: Path) -> tuple[float, float]:
@@ -197,6 +234,7 @@ def load_job(path: str | Path) -> Job:
         raise JobError(f'{path}: tip_parts: a list of part indices')
     start = _xy(data, 'start_xy', path)
     origin = _xy(data, 'dxf_origin_mm', path)
+    drawing = DrawingKeys.read(data, path)
     return Job(path=path, name=str(data['name']), description=str(data.get('description', '')),
                dxf=dxf, width_mm=float(w), height_mm=float(h),
                surface=_section(SurfaceParams, sheet.get('surface'), f'{path}: sheet.surface'),
@@ -209,7 +247,8 @@ def load_job(path: str | Path) -> Job:
                tip_parts=tuple(tips), tip_rise_mm=float(data.get('tip_rise_mm', 3.0)),
                start_xy=start, dxf_origin_mm=origin,
                start_height_mm=float(data.get('start_height_mm', 10.0)),
-               seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}))
+               seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}),
+               drawing=drawing)
 
 
 JOBS_DIR = Path(__file__).resolve().parent / 'jobs'

@@ -4,9 +4,22 @@ All lengths are millimetres once ``$INSUNITS`` has scaled the drawing.
 
 * **Reading** (ezdxf): LINE, ARC, CIRCLE, ELLIPSE, SPLINE, LWPOLYLINE (bulges) and 2D
   POLYLINE in modelspace, flattened by ezdxf's path module to a chord error of at most
-  ``tolerance_mm``; other entities (text, dimensions, hatches, block inserts, 3D polylines) are
-  ignored and listed in ``Program.ignored``. ``$INSUNITS`` must name the units (mm, cm, m,
-  inches); a drawing without them, or whose size is absurd for the sheet, is refused.
+  ``tolerance_mm``; other entities (text, dimensions, hatches, 3D polylines) are ignored and
+  listed in ``Program.ignored``.
+* **Block INSERTs** (a nest as nesting software writes it) are exploded, nested blocks too,
+  MINSERT grids too: each entity of the block is placed by ezdxf's own transformation of the
+  INSERT (``Insert.matrix44()``: insertion point, the block's base point, x/y/z scale, a
+  negative scale mirroring, rotation, extrusion), composed down the nesting, applied to the
+  entity's path before it is flattened. An entity on layer ``0`` in a block is on the layer of
+  its INSERT (the CAD rule).
+* **Layers**: ``layers`` (default all) selects the layers read, by name, case-insensitive; a
+  layer named that carries no entity is refused, naming the drawing's layers. There is no
+  marking (open-contour) layer: an open contour on any layer read is refused, as below.
+* **Units**: ``$INSUNITS`` as the file writes it (read from the file's own tags: ezdxf fills a
+  default, metres, into a drawing without a HEADER section, as R12 files from laser CAMs are),
+  else ``units`` (the job file's ``dxf_units``); the file's and ``units`` disagreeing, neither
+  saying, or a unit not in :data:`UNIT_MM` is refused, one line naming what the file says and
+  does not say. A drawing whose size is absurd for the sheet is refused.
 * **Chaining**: open pieces are joined end to end, either way round, where their ends meet
   within ``max(tolerance_mm, 1e-6 x the drawing's size)``; a chain that does not close is
   refused, naming its open ends. Contours of less than 1e-6 mm² are dropped.
@@ -33,6 +46,7 @@ All lengths are millimetres once ``$INSUNITS`` has scaled the drawing.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import io
 import math
 import numbers
 from pathlib import Path
@@ -40,7 +54,10 @@ import re
 
 import ezdxf
 from ezdxf import path as dxf_path
-from ezdxf.math import Vec3, fit_points_to_cad_cv
+from ezdxf.lldxf.const import DXFError, acad_release
+from ezdxf.lldxf.tagger import ascii_tags_loader
+from ezdxf.math import Matrix44, Vec3, fit_points_to_cad_cv
+from ezdxf.units import unit_name
 import numpy as np
 import shapely
 from shapely.geometry import LinearRing, LineString, Point, Polygon
@@ -49,6 +66,9 @@ from shapely.ops import polylabel
 
 UNITS = {1: ('in', 25.4), 4: ('mm', 1.0), 5: ('cm', 10.0), 6: ('m', 1000.0)}
 """``$INSUNITS`` codes accepted: name and millimetres per unit."""
+UNIT_MM = {'mm': 1.0, 'cm': 10.0, 'm': 1000.0, 'in': 25.4}
+"""The units a job may give a drawing that does not say (``dxf_units``): millimetres per unit."""
+MAX_NESTING = 16         # blocks nested deeper than this: refused (a cycle, or not a nest)
 SUPPORTED = ('LINE', 'ARC', 'CIRCLE', 'ELLIPSE', 'SPLINE', 'LWPOLYLINE', 'POLYLINE')
 MIN_AREA_MM2 = 1e-6      # less: a drawing artefact (a line drawn there and back), dropped
 MIN_LEAD_MM = 0.5        # the shortest lead-in tried onto an outline before giving up on clearance
@@ -94,6 +114,8 @@ class Program:
     parts: tuple[Polygon, ...]  # as drawn (no kerf), in drawing order
     bounds_mm: tuple[float, float, float, float]  # of everything read (minx, miny, maxx, maxy)
     ignored: tuple[str, ...] = ()  # entity types in the modelspace not read (sorted)
+    units_from: str = ''       # where the units come from: '$INSUNITS=4' or 'dxf_units'
+    layers: tuple[str, ...] = ()  # the layers the contours were read from (sorted)
 
 
 def _length(points: np.ndarray) -> float:
@@ -155,21 +177,67 @@ def _read(path: str | Path, name: str):
         raise ProgramError(f'{name}: cannot be read as DXF: {text}') from None
 
 
-def _units(doc, name: str) -> tuple[int, str, float]:
-    """Return the ``$INSUNITS`` code, the units' name and millimetres per unit."""
+def _file_insunits(path: str | Path, doc) -> tuple[bool, int | None]:
+    """Return (the file has a HEADER section, ``$INSUNITS`` as the file writes it or None).
+
+    From the file's own tags, not ``doc.header``: ezdxf fills a default header (``$INSUNITS``
+    6, metres) into a drawing without a HEADER section. A binary DXF: ``doc.header``.
+    """
+    data = Path(path).read_bytes()
+    if data.startswith(b'AutoCAD Binary DXF'):
+        return True, doc.header.get('$INSUNITS') if '$INSUNITS' in doc.header else None
+    has_header = in_header = False
+    code, prev = None, None
     try:
-        code = int(doc.header.get('$INSUNITS', 0))
-    except (TypeError, ValueError):
-        code = 0
-    if code not in UNITS:
-        what = 'missing' if code == 0 else 'not supported'
-        raise ProgramError(f'{name}: drawing units {what} ($INSUNITS={code}): set them to '
-                           'millimetres ($INSUNITS=4; or cm 5, m 6, inches 1)')
-    return code, *UNITS[code]
+        for tag in ascii_tags_loader(io.StringIO(data.decode('latin-1'))):
+            if tag.code == 2 and prev == (0, 'SECTION'):
+                in_header = tag.value.strip() == 'HEADER'
+                has_header |= in_header
+            elif in_header and tag.code == 0 and tag.value.strip() == 'ENDSEC':
+                break  # the header read: nothing else is looked at
+            elif in_header and prev == (9, '$INSUNITS'):
+                code = int(float(tag.value))
+            prev = (tag.code, tag.value.strip() if isinstance(tag.value, str) else tag.value)
+    except (ValueError, TypeError, DXFError):  # a tag ezdxf tolerated: what was read so far
+        pass
+    return has_header, code
 
 
-def _flatten(e, step: float) -> np.ndarray:
-    """Return entity ``e`` as (n, 2) points in drawing units, chord error at most ``step``."""
+def _units(doc, path: str | Path, name: str, given: str | None) -> tuple[str, float, str]:
+    """Return the units' name, millimetres per unit, and where they come from (module doc)."""
+    choices = '|'.join(UNIT_MM)
+    if given is not None and given not in UNIT_MM:
+        raise ProgramError(f'{name}: dxf_units {given!r} is not one of {choices}')
+    has_header, code = _file_insunits(path, doc)
+    if code:  # the file says
+        if code not in UNITS:
+            job = f'; dxf_units: {given} in the job file does not apply' if given else ''
+            what = unit_name(code).lower() if 0 < code <= 24 else 'no unit'
+            raise ProgramError(f'{name}: drawing units not supported ($INSUNITS={code}, '
+                               f'{what}): set them to mm, cm, m or inches ($INSUNITS 4, 5, 6, '
+                               f'1){job}')
+        said, mm = UNITS[code]
+        if given is not None and given != said:
+            raise ProgramError(f'{name}: drawing units disagree: the file says {said} '
+                               f'($INSUNITS={code}), the job file dxf_units: {given}')
+        return said, mm, f'$INSUNITS={code}'
+    if given is not None:
+        return given, UNIT_MM[given], 'dxf_units'
+    release = acad_release.get(doc.dxfversion, '')
+    version = f'{release} ({doc.dxfversion})' if release else doc.dxfversion
+    what = ('without $INSUNITS (no HEADER)' if not has_header else
+            'without $INSUNITS in its HEADER' if code is None else
+            'with $INSUNITS=0 (unitless)')
+    raise ProgramError(f'{name}: drawing units missing: {version} file {what}: give '
+                       f'dxf_units: {choices} in the job file')
+
+
+def _flatten(e, step: float, m: Matrix44 | None = None) -> np.ndarray:
+    """Return entity ``e`` as (n, 2) points in drawing units, chord error at most ``step``.
+
+    ``m``: the transformation of the INSERTs the entity is placed by (applied before
+    flattening, so the chord error is of the placed curve).
+    """
     if (e.dxftype() == 'SPLINE' and e.closed and e.control_point_count() == 0
             and e.fit_point_count() > 2):
         # a closed spline given by fit points alone: ezdxf's path stops at the last one; CAD
@@ -178,9 +246,11 @@ def _flatten(e, step: float) -> np.ndarray:
         if not fit[0].isclose(fit[-1]):
             fit.append(fit[0])
         t = (fit[1] - fit[-2]).normalize()
-        vs = fit_points_to_cad_cv(fit, tangents=[t, t]).flattening(step)
+        spline = fit_points_to_cad_cv(fit, tangents=[t, t])
+        vs = (spline if m is None else spline.transform(m)).flattening(step)
     else:
-        vs = dxf_path.make_path(e).flattening(distance=step)
+        p = dxf_path.make_path(e)
+        vs = (p if m is None else p.transform(m)).flattening(distance=step)
     pts = np.array([(v.x, v.y) for v in vs], dtype=float).reshape(-1, 2)
     if len(pts) > 1:  # zero-length steps out (a polyline's doubled vertex)
         keep = np.r_[True, np.any(np.abs(np.diff(pts, axis=0)) > 1e-12, axis=1)]
@@ -188,39 +258,81 @@ def _flatten(e, step: float) -> np.ndarray:
     return pts
 
 
-def _pieces(doc, scale: float, tol: float, name: str,
-            origin_mm: tuple[float, float] = (0.0, 0.0)) -> tuple[list, list, list[str]]:
-    """Return closed rings and open pieces as (drawing order, (n, 2) mm), and ignored types.
+def _entities(doc, name: str):
+    """Yield (entity, its layer, its INSERTs' transformation or None, where) from the modelspace.
 
-    The points are on the sheet: the drawing's (0, 0) lies at ``origin_mm``.
+    INSERTs exploded (module docstring); ``where`` names the entity for a message: its handle,
+    or its block and the handle of the modelspace INSERT that places it.
     """
-    closed, open_, ignored = [], [], set()
-    for order, e in enumerate(doc.modelspace()):
+
+    def walk(entities, layer0: str | None, m: Matrix44 | None, where: str | None, depth: int):
+        for e in entities:
+            layer = e.dxf.get('layer', '0')
+            if layer == '0' and layer0 is not None:
+                layer = layer0  # in a block, layer 0 takes its INSERT's
+            if e.dxftype() != 'INSERT':
+                here = where or f'#{e.dxf.handle}'
+                yield e, layer, m, here
+                continue
+            block = doc.blocks.get(e.dxf.name)
+            here = where or f'#{e.dxf.handle}'
+            if block is None:
+                raise ProgramError(f'{name}: INSERT {here} names block {e.dxf.name!r}, which '
+                                   'the drawing does not have')
+            if depth >= MAX_NESTING:
+                raise ProgramError(f'{name}: INSERT {here}: blocks nested deeper than '
+                                   f'{MAX_NESTING} (block {e.dxf.name!r})')
+            for ins in (e.multi_insert() if e.mcount > 1 else (e,)):  # a MINSERT: its grid
+                try:
+                    own = ins.matrix44()
+                except Exception as exc:  # a broken INSERT is the drawing's problem
+                    text = ' '.join(str(exc).split()) or type(exc).__name__
+                    raise ProgramError(f'{name}: INSERT {here} cannot be placed: {text}') from None
+                yield from walk(block, layer, own if m is None else own @ m,
+                                f'{here} (block {e.dxf.name!r})', depth + 1)
+
+    yield from walk(doc.modelspace(), None, None, None, 0)
+
+
+def _pieces(doc, scale: float, tol: float, name: str,
+            origin_mm: tuple[float, float] = (0.0, 0.0),
+            layers: tuple[str, ...] | None = None) -> tuple[list, list, list[str], set[str]]:
+    """Return closed rings and open pieces, the ignored types, and the layers found.
+
+    Rings and pieces as (drawing order, (n, 2) mm, layer); the points are on the sheet: the
+    drawing's (0, 0) lies at ``origin_mm``. ``layers``: the layers read (casefolded; None:
+    all); the layers found are those of every entity, read or not.
+    """
+    closed, open_, ignored, found = [], [], set(), set()
+    for order, (e, layer, m, where) in enumerate(_entities(doc, name)):
+        found.add(layer)
+        if layers is not None and layer.casefold() not in layers:
+            continue
         kind = e.dxftype()
         if kind not in SUPPORTED or (kind == 'POLYLINE' and not e.is_2d_polyline):
             ignored.add(kind if kind != 'POLYLINE' else 'POLYLINE (3D or mesh)')
             continue
         try:
-            pts = _flatten(e, tol / scale) * scale + origin_mm
+            pts = _flatten(e, tol / scale, m) * scale + origin_mm
         except Exception as exc:  # a broken entity is the drawing's problem
             text = ' '.join(str(exc).split()) or type(exc).__name__
-            raise ProgramError(f'{name}: {kind} #{e.dxf.handle} cannot be flattened: '
-                               f'{text}') from None
+            what = f'{kind} #{e.dxf.handle}' if m is None else f'{kind} of INSERT {where}'
+            raise ProgramError(f'{name}: {what} cannot be flattened: {text}') from None
         if len(pts) < 2:
             continue
         if len(pts) >= 4 and math.dist(pts[0], pts[-1]) <= tol:
             pts[-1] = pts[0]
-            closed.append((order, pts))
+            closed.append((order, pts, layer))
         else:
-            open_.append((order, pts))
-    return closed, open_, sorted(ignored)
+            open_.append((order, pts, layer))
+    return closed, open_, sorted(ignored), found
 
 
 def _chain(pieces: list, tol: float, name: str) -> list:
-    """Join open pieces end to end into closed rings: [(drawing order, (n, 2))]."""
+    """Join open pieces end to end into closed rings: [(drawing order, (n, 2), layer)]."""
     rings = []
     n = len(pieces)
-    ends = np.array([(p[0], p[-1]) for _, p in pieces], dtype=float).reshape(n, 2, 2)
+    ends = np.array([(p[0], p[-1]) for _, p, _ in pieces], dtype=float).reshape(n, 2, 2)
     free = np.ones(n, dtype=bool)
     for i in range(n):  # each chain from its first piece in drawing order
         if not free[i]:
@@ -246,10 +358,12 @@ def _chain(pieces: list, tol: float, name: str) -> list:
             raise ProgramError(
                 f'{name}: a contour does not close: open end at ({stuck[0]:.3f}, '
                 f'{stuck[1]:.3f}) mm, its other end at ({other[0]:.3f}, {other[1]:.3f}) mm, '
-                f'{math.dist(stuck, other):.3f} mm apart (nothing else within {tol:g} mm)')
+                f'{math.dist(stuck, other):.3f} mm apart (nothing else within {tol:g} mm), '
+                f'on layer {pieces[i][2]!r} (no marking layer: open contours are not cut; '
+                'layers: selects the layers read)')
         ring = np.vstack([chain[0]] + [p[1:] for p in chain[1:]])
         ring[-1] = ring[0]
-        rings.append((pieces[i][0], ring))
+        rings.append((pieces[i][0], ring, pieces[i][2]))
     return rings
 
 
@@ -439,10 +553,14 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
                  micro_joint_mm: float = 0.0, micro_joints_per_part: int = 0,
                  tolerance_mm: float = 0.01,
                  sheet_mm: tuple[float, float] | None = None,
-                 origin_mm: tuple[float, float] = (0.0, 0.0)) -> Program:
+                 origin_mm: tuple[float, float] = (0.0, 0.0),
+                 units: str | None = None,
+                 layers: tuple[str, ...] | None = None) -> Program:
     """Read the DXF ``path`` and make its part program (module docstring).
 
     ``origin_mm``: where the drawing's (0, 0) lies on the sheet (the CNC's work offset).
+    ``units``: the drawing's units where the file does not say (:data:`UNIT_MM`; the job
+    file's ``dxf_units``). ``layers``: the layers read (None or empty: all).
 
     Every bad input (arguments, file, drawing) raises :class:`ProgramError`, one line.
     """
@@ -450,12 +568,20 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
     _check_arguments(name, kerf_mm, lead_in_mm, micro_joint_mm, micro_joints_per_part,
                      tolerance_mm, sheet_mm)
     doc = _read(path, name)
-    code, units, scale = _units(doc, name)
-    closed, open_, ignored = _pieces(doc, scale, tolerance_mm, name, origin_mm)
-    drawn = [p for _, p in closed + open_]
+    units, scale, units_from = _units(doc, path, name, units)
+    wanted = {str(x).casefold() for x in layers} if layers else None
+    closed, open_, ignored, found = _pieces(doc, scale, tolerance_mm, name, origin_mm, wanted)
+    if wanted is not None:
+        missing = sorted(x for x in layers if str(x).casefold() not in
+                         {f.casefold() for f in found})
+        if missing:
+            raise ProgramError(f'{name}: layers: {", ".join(map(str, missing))} not in the '
+                               f'drawing (its layers: {", ".join(sorted(found)) or "none"})')
+    drawn = [p for _, p, _ in closed + open_]
     if not drawn:
-        raise ProgramError(f'{name}: nothing to cut: no line, arc, circle, ellipse, spline or '
-                           'polyline in the modelspace')
+        on = f' on layers {", ".join(map(str, layers))}' if wanted is not None else ''
+        raise ProgramError(f'{name}: nothing to cut{on}: no line, arc, circle, ellipse, spline '
+                           'or polyline in the modelspace or its block INSERTs')
     every = np.vstack(drawn)
     minx, miny = every.min(axis=0)
     maxx, maxy = every.max(axis=0)
@@ -464,10 +590,10 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
                                                       or h > 2.0 * sheet_mm[1])):
         sheet = f', the sheet {sheet_mm[0]:g} x {sheet_mm[1]:g} mm' if sheet_mm else ''
         raise ProgramError(f'{name}: units absurd for the sheet: the drawing is {w:.4g} x '
-                           f'{h:.4g} mm read as {units} ($INSUNITS={code}){sheet}')
+                           f'{h:.4g} mm read as {units} ({units_from}){sheet}')
     join = max(tolerance_mm, 1e-6 * float(np.abs(every).max()))
     rings = sorted(closed + _chain(open_, join, name), key=lambda r: r[0])
-    polys = [p for p in (_polygon(r, name) for _, r in rings) if p is not None]
+    polys = [p for p in (_polygon(r, name) for _, r, _ in rings) if p is not None]
     if not polys:
         raise ProgramError(f'{name}: no closed contour with an area in the drawing')
     outlines, holes_of, enclosing = _nest(polys, name)
@@ -504,7 +630,8 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
     if sheet_mm is not None:
         _check_on_sheet(order, sheet_mm, name)
     return Program(name, units, scale, tuple(order), tuple(parts),
-                   (float(minx), float(miny), float(maxx), float(maxy)), tuple(ignored))
+                   (float(minx), float(miny), float(maxx), float(maxy)), tuple(ignored),
+                   units_from, tuple(sorted({layer for _, _, layer in rings})))
 
 
 def _check_on_sheet(contours: list[Contour], sheet_mm: tuple[float, float], name: str) -> None:
