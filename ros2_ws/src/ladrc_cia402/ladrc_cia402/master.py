@@ -1,0 +1,345 @@
+"""The CiA 402 master's cyclic core: plain Python, no ROS, testable against a fake bus.
+
+The driver node (``node/driver_node.py``) is thin: it turns messages into the plain values of
+:class:`Command`, calls :meth:`Master.cycle` once per period and turns the returned
+:class:`Sample` into ``axis/feedback`` and ``axis/capacitive_height``. Everything CANopen is
+here:
+
+* **Configuration** (:func:`configure`, by SDO, may wait: not cyclic): 0x1000 must name device
+  profile 402 (else one line: :class:`ConfigError`), the PDO mapping of
+  :mod:`.mapping` with the RPDO deadline as RPDO1's event timer (0x1400 sub 5), 0x6060 = 9
+  (cyclic synchronous velocity) checked by 0x6061, 0x1006 = the period; then NMT start.
+* **One cycle** (:meth:`Master.cycle`): RPDO1 (controlword from
+  :func:`.ds402.next_controlword` toward the goal, target velocity by :mod:`.units`), then
+  SYNC, then the TPDOs of that SYNC are awaited (``wait_s``): statusword and position in TPDO1,
+  velocity and the analog input in TPDO2.
+* **Goal**: Operation enabled while a commander commands the axis (the driver's commander lock
+  admitted a command) and nothing is faulted; Switch on disabled without a commander; quick
+  stop on any fault. The target is non-zero only in Operation enabled, unfaulted, with the
+  commander's command admitted and ``enable`` true; it is rounded toward zero
+  (:meth:`.units.DriveUnits.velocity_command`), so a downward command never comes out larger.
+* **Faults** (latched until :meth:`Master.request_reset`): the drive in Fault / Fault reaction
+  active / Quick stop active, an EMCY (its text from :mod:`.emcy`), a TPDO missing for
+  ``missing_tpdo_cycles`` cycles, a statusword of no state, a bus error or any exception in
+  the cycle: the exception path sends a quick-stop controlword with a zero target and reports
+  the reason; no later cycle sends a non-zero target until the reset.
+* **Reset**: the fault reset (controlword bit 7, one rising edge every second cycle until the
+  drive leaves Fault) and the master's latched faults cleared.
+
+Frames come in on another thread (python-can's notifier): :meth:`Master.on_frame` stores them
+under a lock and wakes the waiting cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import math
+import threading
+import time
+from typing import Any, Callable
+
+from ladrc_contract.schema import Section, param
+
+from . import ds402, emcy, mapping
+from .ds402 import Goal, State
+from .units import AnalogScale, DriveUnits
+
+DEVICE_TYPE = 0x1000
+COMM_CYCLE = 0x1006
+DEVICE_PROFILE_402 = 402
+BUS_INTERFACES = ('remote', 'socketcan')
+
+
+@dataclass(frozen=True)
+class DriverParams(Section):
+    """The driver node's parameters, declared once (``ladrc_contract.schema``)."""
+
+    bus_interface: str = param('remote', '', "python-can interface: 'remote' (python-can-remote "
+                               "over 127.0.0.1) or 'socketcan'", choices=BUS_INTERFACES,
+                               runtime=False)
+    bus_channel: str = param('ws://127.0.0.1:54701/', '', 'python-can channel: ws://HOST:PORT/ '
+                             '(remote) or can0 (socketcan)', runtime=False)
+    node_id: int = param(5, '1', "the drive's CANopen node id", ge=1, le=127, runtime=False)
+    period_s: float = param(0.0005, 's', 'the SYNC period (0x1006) = the controller period h_s',
+                            ge=0.0001, le=0.1, runtime=False)
+    increments_per_mm: float = param(1000.0, 'inc/mm', 'encoder increments per mm (0x6064)',
+                                     gt=0.0, le=1e9, runtime=False)
+    velocity_units_per_mm_s: float = param(1000.0, '1/(mm/s)', "the drive's velocity units "
+                                           'per mm/s (0x606C, 0x60FF)', gt=0.0, le=1e9,
+                                           runtime=False)
+    analog_counts_per_mm: float = param(1000.0, 'counts/mm', 'capacitive analog input 0x6401 '
+                                        'sub 1: counts per mm of gap', gt=0.0, le=1e6,
+                                        runtime=False)
+    analog_invalid_count: int = param(0x7FFF, '1', 'the analog count of a reading out of range '
+                                      '(valid false)', ge=-0x8000, le=0x7FFF, runtime=False)
+    rpdo_deadline_ms: int = param(10, 'ms', "the drive's RPDO deadline (0x1400 sub 5): no "
+                                  'RPDO for this long -> the drive faults and brakes', ge=1,
+                                  le=65535, runtime=False)
+    missing_tpdo_cycles: int = param(3, '1', 'free-running: this many cycles in a row '
+                                     'without both TPDOs of their SYNC is a drive fault', ge=1,
+                                     le=1000, runtime=False)
+    lockstep: bool = param(False, '', 'lock step: publish step k (sim/lockstep), send the next '
+                           'SYNC only once the command answering k arrived', runtime=False)
+    lockstep_timeout_s: float = param(10.0, 's', 'lock step: wall-clock wait for a TPDO or the '
+                                      "controller's answer before giving up (a dead peer)",
+                                      gt=0.0, le=600.0, runtime=False)
+    sdo_timeout_s: float = param(30.0, 's', 'at start: wait this long for the drive to answer '
+                                 'SDO (it may still be booting)', gt=0.0, le=600.0,
+                                 runtime=False)
+    wait_for_controller_s: float = param(60.0, 's', 'lock step: wait this long for a '
+                                         'controller in lock step before the first step',
+                                         gt=0.0, le=600.0, runtime=False)
+    frame_id: str = param('z_axis', '', 'header.frame_id of the samples', runtime=False)
+
+    def units(self) -> DriveUnits:
+        """Return the drive's integer units."""
+        return DriveUnits(self.increments_per_mm, self.velocity_units_per_mm_s)
+
+    def analog(self) -> AnalogScale:
+        """Return the analog input's scaling."""
+        return AnalogScale(self.analog_counts_per_mm, self.analog_invalid_count)
+
+
+class ConfigError(RuntimeError):
+    """The drive cannot be configured as a CSV axis (one line, for the node's exit)."""
+
+
+@dataclass(frozen=True)
+class Command:
+    """The latest command of a cycle, as plain values (the node's commander lock decided)."""
+
+    velocity_mm_s: float = 0.0
+    enable: bool = False
+    admitted: bool = False  # the commander lock admitted it (False: hold zero)
+    commanded: bool = False  # a commander owns the axis (goal Operation enabled)
+
+
+@dataclass(frozen=True)
+class Sample:
+    """What one cycle's TPDOs said, in the contract's units (``fresh`` False: none came)."""
+
+    fresh: bool
+    position_mm: float
+    velocity_mm_s: float
+    enabled: bool
+    fault: bool
+    fault_reason: str
+    gap_mm: float
+    gap_valid: bool
+    state: State | None
+    controlword: int
+    target: int
+
+
+def configure(sdo: Any, nmt: Any, p: DriverParams, sleep: Callable[[float], None] = time.sleep
+              ) -> str:
+    """Configure the drive by SDO (module docstring), then NMT start; return one info line.
+
+    ``sdo`` is a canopen ``SdoClient`` (``sdo[index][sub].raw``, ``sdo[index].raw``), ``nmt``
+    its node's NMT (``state = 'OPERATIONAL'``). The first read is retried until
+    ``p.sdo_timeout_s`` (a drive still booting); any later refusal raises :class:`ConfigError`.
+    """
+    limit = time.monotonic() + p.sdo_timeout_s
+    while True:
+        try:
+            device_type = int(sdo[DEVICE_TYPE].raw)
+            break
+        except Exception as exc:  # noqa: BLE001 -- a timeout while the drive boots
+            if time.monotonic() > limit:
+                raise ConfigError(f'node {p.node_id}: no SDO answer for 0x1000 within '
+                                  f'{p.sdo_timeout_s:g} s ({exc})') from None
+            sleep(0.2)
+    if device_type & 0xFFFF != DEVICE_PROFILE_402:
+        raise ConfigError(f'node {p.node_id}: device type 0x{device_type:08X} is profile '
+                          f'{device_type & 0xFFFF}, not a CiA 402 drive')
+    rpdo = replace(mapping.RPDO1, event_timer_ms=p.rpdo_deadline_ms)
+    try:
+        for pdo in (rpdo, mapping.TPDO1, mapping.TPDO2):
+            for index, sub, value in mapping.sdo_writes(pdo, p.node_id):
+                sdo[index][sub].raw = value
+        if int(sdo[0x1400][5].raw) != p.rpdo_deadline_ms:
+            raise ConfigError(f'node {p.node_id}: RPDO deadline not taken')
+        sdo[ds402.MODES_OF_OPERATION].raw = ds402.MODE_CYCLIC_SYNC_VELOCITY
+        shown = int(sdo[ds402.MODES_OF_OPERATION_DISPLAY].raw)
+        if shown != ds402.MODE_CYCLIC_SYNC_VELOCITY:
+            raise ConfigError(f'node {p.node_id}: 0x6061 shows mode {shown} after 0x6060 = 9 '
+                              '(cyclic synchronous velocity)')
+        cycle_us = int(round(p.period_s * 1e6))
+        sdo[COMM_CYCLE].raw = cycle_us
+        if int(sdo[COMM_CYCLE].raw) != cycle_us:
+            raise ConfigError(f'node {p.node_id}: 0x1006 not {cycle_us} us')
+    except ConfigError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- an SDO abort: one line
+        raise ConfigError(f'node {p.node_id}: configuration refused: {exc}') from None
+    nmt.state = 'OPERATIONAL'
+    return (f'node {p.node_id}: CiA 402 (0x{device_type:08X}), CSV, SYNC {cycle_us} us, '
+            f'RPDO deadline {p.rpdo_deadline_ms} ms, operational')
+
+
+class Master:
+    """The cyclic master (module docstring); :meth:`cycle` once per period."""
+
+    def __init__(self, p: DriverParams, send: Callable[[int, bytes], None]) -> None:
+        """``send(cob_id, data)``: put one frame on the bus (raises on a bus error)."""
+        self.p = p
+        self.send = send
+        self.units = p.units()
+        self.analog = p.analog()
+        n = p.node_id
+        self.cob_rpdo = mapping.RPDO1.cob_id(n)
+        self.cob_tpdo1 = mapping.TPDO1.cob_id(n)
+        self.cob_tpdo2 = mapping.TPDO2.cob_id(n)
+        self.cob_emcy = emcy.EMCY_COB_BASE + n
+        self._cv = threading.Condition()
+        self._tpdo1: bytes | None = None
+        self._tpdo2: bytes | None = None
+        self._emcy: list[tuple[int, int, bytes]] = []
+        self.statusword = 0
+        self.position = 0
+        self.velocity = 0
+        self.counts = p.analog_invalid_count
+        self.state: State | None = None
+        self.controlword = 0
+        self.fault_reason = ''  # the master's latched fault ('' = none)
+        self.emcy_reason = ''  # the last EMCY's text, latched until the reset
+        self.missing = 0  # cycles in a row without both TPDOs
+        self.cycles = 0
+        self.missed_total = 0
+        self.emcy_count = 0
+        self._reset = False
+
+    # ---- frames in (another thread) ---------------------------------------------------
+    def on_frame(self, can_id: int, data: bytes) -> None:
+        """Store a TPDO or an EMCY of our node (python-can's notifier thread)."""
+        with self._cv:
+            if can_id == self.cob_tpdo1:
+                self._tpdo1 = bytes(data)
+            elif can_id == self.cob_tpdo2:
+                self._tpdo2 = bytes(data)
+            elif can_id == self.cob_emcy:
+                self._emcy.append(emcy.unpack_emcy(bytes(data)))
+            else:
+                return
+            self._cv.notify_all()
+
+    @property
+    def frame_ids(self) -> tuple[int, int, int]:
+        """The COB-IDs :meth:`on_frame` wants."""
+        return self.cob_tpdo1, self.cob_tpdo2, self.cob_emcy
+
+    # ---- the operator's reset ----------------------------------------------------------
+    def request_reset(self) -> None:
+        """Fault reset: the drive's (bit 7 edges until it leaves Fault) and the master's."""
+        with self._cv:
+            self._reset = True
+            self.fault_reason = ''
+            self.emcy_reason = ''
+            self.missing = 0
+
+    # ---- one cycle ----------------------------------------------------------------------
+    def faulted(self) -> bool:
+        """Whether the master or the drive reports a fault now."""
+        return bool(self.fault_reason or self.emcy_reason) or self.state in (
+            State.FAULT, State.FAULT_REACTION_ACTIVE, State.QUICK_STOP_ACTIVE)
+
+    def _goal(self, cmd: Command) -> Goal:
+        if self.fault_reason or self.emcy_reason:
+            return Goal.QUICK_STOP
+        if self.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            return Goal.QUICK_STOP
+        return Goal.OPERATION_ENABLED if cmd.commanded else Goal.SWITCH_ON_DISABLED
+
+    def _rpdo(self, cmd: Command) -> tuple[int, int]:
+        state = self.state if self.state is not None else State.NOT_READY_TO_SWITCH_ON
+        goal = self._goal(cmd)
+        cw = ds402.next_controlword(state, goal, self._reset, self.controlword)
+        target = 0
+        if (goal is Goal.OPERATION_ENABLED and state is State.OPERATION_ENABLED
+                and cw == ds402.CW_ENABLE_OPERATION and cmd.admitted and cmd.enable
+                and math.isfinite(cmd.velocity_mm_s)):
+            target = self.units.velocity_command(cmd.velocity_mm_s)
+        return cw, target
+
+    def cycle(self, cmd: Command, wait_s: float) -> Sample:
+        """RPDO, SYNC, the TPDOs of that SYNC (at most ``wait_s``); never raises.
+
+        Any exception: a quick-stop controlword with a zero target is sent (if the bus takes
+        it), the fault is latched with the exception's text, and the sample reports it.
+        """
+        cw, target = self.controlword, 0
+        try:
+            cw, target = self._rpdo(cmd)
+            with self._cv:
+                self._tpdo1 = self._tpdo2 = None
+            self.send(self.cob_rpdo, mapping.pack(mapping.RPDO1.entries, (cw, target)))
+            self.controlword = cw
+            self.send(mapping.SYNC_COB_ID, b'')
+            self.cycles += 1
+            fresh = self._await(wait_s)
+            self._take_emcy()
+            if fresh:
+                self.missing = 0
+                if self.state not in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+                    self._reset = False  # out of Fault: the reset is done
+            else:
+                self.missing += 1
+                self.missed_total += 1
+                if self.missing >= self.p.missing_tpdo_cycles and not self.fault_reason:
+                    self.fault_reason = (f'no TPDO from node {self.p.node_id} for '
+                                         f'{self.missing} cycles (SYNC {self.p.period_s * 1e3:g}'
+                                         ' ms): bus or drive lost')
+            return self._sample(fresh, cw, target)
+        except Exception as exc:  # noqa: BLE001 -- every exception path ends in a quick stop
+            self._exception(exc)
+            return self._sample(False, self.controlword, 0)
+
+    def _exception(self, exc: BaseException) -> None:
+        reason = f'driver exception: {type(exc).__name__}: {exc}; quick stop'
+        if not self.fault_reason:
+            self.fault_reason = ' '.join(reason.split())
+        try:
+            self.send(self.cob_rpdo, mapping.pack(mapping.RPDO1.entries,
+                                                  (ds402.CW_QUICK_STOP, 0)))
+            self.controlword = ds402.CW_QUICK_STOP
+        except Exception:  # noqa: BLE001, S110 -- the bus is gone: the drive's deadline stops it
+            pass
+
+    def _await(self, wait_s: float) -> bool:
+        end = time.monotonic() + wait_s
+        with self._cv:
+            while self._tpdo1 is None or self._tpdo2 is None:
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                self._cv.wait(left)
+            t1, t2 = self._tpdo1, self._tpdo2
+        if t1 is None or t2 is None:
+            return False
+        self.statusword, self.position = mapping.unpack(mapping.TPDO1.entries, t1)
+        self.velocity, self.counts = mapping.unpack(mapping.TPDO2.entries, t2)
+        self.state = ds402.state_of(self.statusword)  # UnknownStatus -> the exception path
+        return True
+
+    def _take_emcy(self) -> None:
+        with self._cv:
+            frames, self._emcy = self._emcy, []
+        for code, register, manufacturer in frames:
+            if code == 0:  # error reset / no error: the drive's answer to the reset
+                continue
+            self.emcy_count += 1
+            if not self.emcy_reason:
+                self.emcy_reason = emcy.fault_text(code, register, manufacturer)
+
+    def _sample(self, fresh: bool, cw: int, target: int) -> Sample:
+        state = self.state
+        reasons = [r for r in (self.fault_reason, self.emcy_reason) if r]
+        if state in (State.FAULT, State.FAULT_REACTION_ACTIVE, State.QUICK_STOP_ACTIVE) \
+                and not reasons:
+            reasons.append(f'drive in {state.value} (statusword 0x{self.statusword:04X})')
+        gap, valid = self.analog.mm(self.counts)
+        return Sample(fresh=fresh, position_mm=self.units.position_mm(self.position),
+                      velocity_mm_s=self.units.velocity_mm_s(self.velocity),
+                      enabled=state is State.OPERATION_ENABLED and not reasons,
+                      fault=bool(reasons), fault_reason='; '.join(reasons), gap_mm=gap,
+                      gap_valid=valid, state=state, controlword=cw, target=target)
