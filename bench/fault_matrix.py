@@ -1,7 +1,7 @@
 """The fault-injection matrix of the safety issue: each row injects one fault, prints its figure.
 
     scripts/in-env python bench/fault_matrix.py [--load-s 30] [--clients-s 18] [--skip-live]
-        [--only headless|param-fuzz|cnc-fuzz|live]
+        [--only headless|param-fuzz|cnc-fuzz|live|canopen]
 
 Headless rows run the FollowController against the simulator models (the runner the sim node
 drives), deterministic per seed: a frozen sensor with fresh stamps, sensor stops of 5/50/500 ms,
@@ -30,6 +30,12 @@ A contact is a true gap <= 0 (sim truth). Last line: one JSON object with at lea
 ``contacts``, ``node_crashes``, ``probe_crashes``, ``nonfinite_commands``,
 ``invalid_params_accepted``, ``invalid_params_tried``, ``spurious_faults_under_load``,
 ``kill_stop_ms``, ``recorder_kill_loss_s``, ``param_clients``, and every row.
+
+CiA 402 rows (``canopen``, issue 41) run the same follow on the CANopen path (the CiA 402
+driver node, the emulated drive, the test bus; free-running at 1 ms, the period the test bus
+holds on 2 cores): the driver SIGKILLed, the emulated drive SIGKILLed, the bus server killed, an
+EMCY following error, a second master's RPDOs at -50 mm/s, random frames on the bus; last-line
+keys ``canopen_kill_stop_ms`` and ``canopen_node_crashes``.
 
 ``--only PART`` runs one part of the matrix: ``headless`` (the headless rows), ``param-fuzz``,
 ``cnc-fuzz`` (the CNC interface fuzz, the cheapest: tests/test_benches.py runs it) or ``live``;
@@ -816,13 +822,175 @@ def live_rows(load_s: float, clients_s: float) -> dict:
     return out
 
 
+# ---- the CiA 402 path on the test bus (issue 41): the driver node, the emulated drive -------
+CANOPEN_PERIOD_S = 0.001  # the test bus does not hold 0.5 ms free-running on 2 cores
+ROGUE = r"""
+import random, sys, time
+import can
+bus = can.Bus(channel=sys.argv[1], interface='remote')
+kind, seconds, period = sys.argv[2], float(sys.argv[3]), float(sys.argv[4])
+rng = random.Random(11)
+end = time.monotonic() + seconds
+n = 0
+while time.monotonic() < end:
+    if kind == 'master':   # RPDO1 of node 5: controlword enable operation, -50 mm/s
+        msg = can.Message(arbitration_id=0x205, is_extended_id=False,
+                          data=(0x0F).to_bytes(2, 'little') + (-50000).to_bytes(4, 'little',
+                                                                                signed=True))
+    else:                  # any frame: random id (11 bit), random length and bytes
+        k = rng.randint(0, 8)
+        msg = can.Message(arbitration_id=rng.randint(0, 0x7FF), is_extended_id=False,
+                          data=bytes(rng.randint(0, 255) for _ in range(k)))
+    bus.send(msg)
+    n += 1
+    time.sleep(period)
+print(n, flush=True)
+bus.shutdown()
+"""
+
+
+def canopen_rows() -> dict:
+    """Rows of the CiA 402 path: the driver node and the emulated drive on the test bus.
+
+    Free-running at ``CANOPEN_PERIOD_S`` (controller, driver and drive), the axis following
+    the 0.3 mm sine sheet at 1 mm: the driver SIGKILLed (the drive's RPDO deadline brakes the
+    axis), the emulated drive SIGKILLed, the bus server killed, an EMCY following error raised
+    by the drive, a second master's RPDOs (-50 mm/s) and random frames on the bus. Each row:
+    contact (true gap <= 0), the time to rest where the axis survives, the follow node's fault
+    and its reason, crashes of the nodes that should survive.
+    """
+    from ladrc_msgs.msg import AxisFeedback, FollowStatus, SimTruth
+    from ladrc_msgs.srv import ResetFault, StartFollow
+    from ladrc_sim.cia402.bus import start_bus_server
+    from ladrc_tools.bringup.bringup import node_specs, ros_arguments
+    from rosnodes import NodeProcesses, Probe, ProbeError
+
+    out: dict = {'canopen_node_crashes': 0, 'canopen_contacts': 0}
+    domains = iter(random.sample(range(1, 102), 10))
+    scenario = str(SCENARIOS / 'follow_sine.yaml')
+    fault_scenario = Path(tempfile.mkdtemp(prefix='fault-canopen-')) / 'follow_sine_emcy.yaml'
+    fault_scenario.write_text((SCENARIOS / 'follow_sine.yaml').read_text().replace(
+        'name: follow_sine', 'name: follow_sine_emcy') + 'timeline:\n  - {t_s: 8.0, do: drive, '
+        'enabled: true, fault: true, error_code: 0x8611}\n', encoding='utf-8')
+
+    def stamp_s(r) -> tuple:
+        return (r[0] + r[1] * 1e-9, *r[2:])
+
+    def one(name: str, inject, scenario_file: str = scenario, survivors=('follow', 'sim',
+                                                                        'driver')) -> dict:
+        os.environ['ROS_DOMAIN_ID'] = str(next(domains))
+        nodes, probe, server = NodeProcesses(), Probe(f'fault_canopen_{len(ROWS)}'), None
+        t_sigkill = None
+        try:
+            server = start_bus_server(nodes.logdir / 'bus.log')
+            specs = {s.executable: s for s in node_specs(
+                scenario_file, drive='cia402', bus=server.url, period_s=CANOPEN_PERIOD_S)}
+            for exe, short in (('follow_node', 'follow'), ('driver_node', 'driver'),
+                               ('sim_node', 'sim')):
+                extra = ['-p', 'wait_for_controller_s:=0.0'] if exe == 'sim_node' else []
+                nodes.start(short, specs[exe].package, exe, *ros_arguments(specs[exe])[1:],
+                            *extra)
+            status = probe.record(FollowStatus, 'follow/status',
+                                  fields=['t_s', 'state', 'fault_reason', 'velocity_mm_s'])
+            truth = probe.record(SimTruth, 'sim/truth', fields=[
+                'header.stamp.sec', 'header.stamp.nanosec', 'true_gap_mm', 'nozzle_mm'],
+                keep=stamp_s)
+            fbs = probe.record(AxisFeedback, 'axis/feedback', fields=['drive_fault',
+                                                                      'fault_reason'])
+            if not probe.spin_until(lambda: len(status) > 200 and len(fbs) > 200, 60.0):
+                raise RuntimeError(f'{name}: no follow/status or axis/feedback: '
+                                   + nodes.log('driver')[-800:])
+            spurious = []  # faults before the injection (a stall of this loaded machine)
+            for _attempt in range(4):
+                if status[-1][1] == FAULT:
+                    spurious.append(status[-1][2])
+                    probe.call(ResetFault, 'axis/reset_drive', ResetFault.Request())
+                    probe.call(ResetFault, 'follow/reset_fault', ResetFault.Request())
+                    probe.spin_for(0.5)
+                res = probe.call(StartFollow, 'follow/start',
+                                 StartFollow.Request(target_gap_mm=1.0))
+                # following, on the moving sheet, the axis moving (|command| > 1 mm/s)
+                if res.accepted and probe.spin_until(
+                        lambda: status[-1][1] == FAULT or (
+                            status[-1][1] == 4 and status[-1][0] > 5.0
+                            and abs(status[-1][3]) > 1.0), 40.0) and status[-1][1] == 4:
+                    break
+            else:
+                raise RuntimeError(f'{name}: not following: {status[-1]}; before: {spurious}')
+            n_status, n_fb = len(status), len(fbs)
+            t_inject = time.time()
+            killed = inject(nodes, server)
+            if killed:
+                t_sigkill = time.monotonic()
+            probe.spin_for(2.0)
+            tr = np.asarray(truth[:], dtype=float)
+            contact = bool(tr.size and (tr[:, 1] <= 0.0).any())
+            after = tr[tr[:, 0] > t_inject] if tr.size else tr
+            rest_ms = None
+            if len(after) > 2:
+                v = np.abs(np.diff(after[:, 2])) / np.maximum(np.diff(after[:, 0]), 1e-6)
+                moving = np.flatnonzero(v > 0.1)
+                rest_ms = float(((after[moving[-1] + 1, 0] if moving.size else after[0, 0])
+                                 - t_inject) * 1e3)
+            reasons = [s[2] for s in status[n_status:] if s[1] == FAULT and s[2]]
+            drive_reasons = [f[1] for f in fbs[n_fb:] if f[0] and f[1]]
+            crashes = 0
+            for short in survivors:
+                rc = nodes.procs[short].poll()
+                if rc is not None and rc != 0:
+                    crashes += 1
+                    print(f'   {short} exited with {rc}: {nodes.log(short)[-600:]}')
+            r = row(f'CiA 402: {name}', contact=contact, stop_ms=rest_ms,
+                    follow_fault=reasons[0][:160] if reasons else '',
+                    drive_fault=drive_reasons[0][:160] if drive_reasons else '',
+                    min_true_gap_mm=float(tr[:, 1].min()) if tr.size else None,
+                    crashes=crashes, spurious_faults_before=len(spurious))
+            out['canopen_node_crashes'] += crashes
+            out['canopen_contacts'] += int(contact)
+            return r
+        finally:
+            try:
+                if t_sigkill is not None:
+                    wait = t_sigkill + SIGKILL_SETTLE_S - time.monotonic()
+                    if wait > 0:
+                        time.sleep(wait)
+                try:
+                    probe.close()
+                except ProbeError as exc:
+                    out['probe_crashes'] = out.get('probe_crashes', 0) + 1
+                    print(f'   PROBE CRASH: {str(exc)[:800]}')
+            finally:
+                nodes.close()
+                if server is not None:
+                    server.stop()
+
+    def rogue(server, kind: str, seconds: float, period_s: float) -> None:
+        subprocess.run([sys.executable, '-c', ROGUE, server.url, kind, str(seconds),
+                        str(period_s)], check=False, timeout=60, capture_output=True)
+
+    r = one('driver SIGKILL while following',
+            lambda nodes, server: nodes.kill('driver') or True, survivors=('follow', 'sim'))
+    out['canopen_driver_kill_stop_ms'] = r['stop_ms']
+    one('emulated drive SIGKILL', lambda nodes, server: nodes.kill('sim') or True,
+        survivors=('follow', 'driver'))
+    one('bus server SIGKILL', lambda nodes, server: os.kill(server.pid, signal.SIGKILL) or True)
+    one('EMCY 0x8611 following error raised by the drive', lambda nodes, server: None,
+        scenario_file=str(fault_scenario))
+    one('a second master: RPDO1 at -50 mm/s, 1 kHz for 1 s',
+        lambda nodes, server: rogue(server, 'master', 1.0, 0.001))
+    one('random frames on the bus, 2 kHz for 2 s',
+        lambda nodes, server: rogue(server, 'random', 2.0, 0.0005))
+    shutil.rmtree(fault_scenario.parent, ignore_errors=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--load-s', type=float, default=30.0, help='seconds of the load row')
     ap.add_argument('--clients-s', type=float, default=18.0,
                     help='seconds of the parameter clients row (rounds of 20 processes)')
     ap.add_argument('--skip-live', action='store_true', help='headless rows only')
-    ap.add_argument('--only', choices=('headless', 'param-fuzz', 'cnc-fuzz', 'live'),
+    ap.add_argument('--only', choices=('headless', 'param-fuzz', 'cnc-fuzz', 'live', 'canopen'),
                     help='run only this part of the matrix [all]')
     a = ap.parse_args()
     rng = random.Random(7)
@@ -842,10 +1010,19 @@ def main() -> None:
         except (RuntimeError, AssertionError) as exc:  # a live row could not run: say which
             live_error = ' '.join(str(exc).split())[:300] or type(exc).__name__
             print(f'live rows stopped: {live_error}')
+    canopen: dict = {}
+    if a.only in (None, 'canopen') and not a.skip_live:
+        try:
+            canopen = canopen_rows()
+        except (RuntimeError, AssertionError) as exc:
+            live_error = (live_error + '; ' if live_error else '') + (
+                'CiA 402 rows: ' + ' '.join(str(exc).split())[:300])
+            print(f'CiA 402 rows stopped: {live_error}')
     live_tried, live_accepted = live.get('live_params', (0, 0))
     summary = {
         'contacts': sum(1 for r in ROWS if r.get('contact') is True),
-        'node_crashes': int(crashes + live.get('node_crashes', 0)),
+        'node_crashes': int(crashes + live.get('node_crashes', 0)
+                            + canopen.get('canopen_node_crashes', 0)),
         'probe_crashes': live.get('probe_crashes'),  # the probe process', not a node's
         'nonfinite_commands': int(sum(r.get('nonfinite_commands', 0) for r in ROWS)),
         'invalid_params_accepted': int(accepted + live_accepted),
@@ -869,6 +1046,8 @@ def main() -> None:
         'edge_rows_below_0_7_verification_off': [
             r['row'] for r in ROWS
             if r.get('gap_over_target', 1.0) < 0.7 and r['row'].endswith(OFF_LABEL)],
+        'canopen_kill_stop_ms': canopen.get('canopen_driver_kill_stop_ms'),
+        'canopen_node_crashes': canopen.get('canopen_node_crashes'),
         'live_error': live_error,  # '' when every live row ran
         'wall_s': round(time.monotonic() - t0, 1),
         'rows': ROWS,

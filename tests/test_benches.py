@@ -7,12 +7,13 @@ object must hold the keys its docstring documents, each with a value of the righ
 Nothing here looks at a figure's size: the benches measure time, the tests only that they run
 (a loaded machine makes them slower, never failed); the timeouts are bounds on a hang.
 
-The benches that start ROS nodes (``stalls``, ``loop_timing``, ``live_jobs``) carry the ``ros``
-marker and run in the isolation of the ROS tests: the ROS_DOMAIN_ID and localhost discovery of
-tests/ros/conftest.py (loaded from there, as tests/commissioning/test_calibration_live.py
-does), passed to the bench's own ``--domain-id`` where it has one. Not run here: the live part
-of ``bag_scale`` (``--part live``) and the live rows of ``fault_matrix``, which pick their own
-domains at random (1..101, the tests' range) and are too long for a smoke test.
+The benches that start ROS nodes (``stalls``, ``loop_timing``, ``live_jobs``,
+``view_load``) carry the ``ros`` marker and run in the isolation of the ROS tests: the
+ROS_DOMAIN_ID and localhost discovery of tests/ros/conftest.py (loaded from there, as
+tests/commissioning/test_calibration_live.py does), passed to the bench's own ``--domain-id``
+where it has one. Not run here: the live part of ``bag_scale`` (``--part live``) and the live
+rows of ``fault_matrix``, which pick their own domains at random (1..101, the tests' range)
+and are too long for a smoke test.
 
 A bench is ended by its process group's id if it outlives its timeout (SIGINT first: a bench
 stops the nodes it started; SIGKILL if it hangs).
@@ -195,6 +196,22 @@ def test_headless_speed() -> None:
               'error_rms_mm': NUM})
 
 
+def test_html_report() -> None:
+    """The zoomable report of a 2 s bag; the browser figures are null without Chromium."""
+    r = run_bench('html_report', '--seconds', '2', timeout_s=600)
+    check(r, {'seconds': NUM, 'ticks': INT, 'bag_bytes': INT, 'html_bytes': INT, 'write_s': NUM,
+              'write_peak_rss_mib': OPT_NUM, 'report_no_html_s': NUM,
+              'report_no_html_peak_rss_mib': OPT_NUM, 'html_parts': DICT,
+              'chromium_render_s': OPT_NUM, 'chromium_wall_s': OPT_NUM,
+              'page_timing': OPT_DICT, 'console_errors': (LIST, NULL),
+              'full_view_level': (INT, NULL), 'level_50ms': (INT, NULL),
+              'points_in_50ms_window': (INT, NULL), 'samples_in_window': (INT, NULL),
+              'command_points_in_50ms_window': (INT, NULL), 'zoom_s': OPT_NUM})
+    if r['chromium_render_s'] is not None:  # the 50 ms window: every sample drawn
+        assert r['points_in_50ms_window'] == r['samples_in_window'] > 0, r
+        assert r['console_errors'] == [], r['console_errors']
+
+
 def test_identified_plant() -> None:
     r = run_bench('identified_plant', '--quick', timeout_s=300)
     check(r, {'ladrc_pm_deg_gain_b0_1': NUM, 'ladrc_pm_deg_gain_1': NUM,
@@ -320,3 +337,48 @@ def test_live_jobs(ros_env: dict[str, str]) -> None:
     check(job['headless'], figures, 'headless: ')
     # the live figures are bringup's last line: none if bringup failed (the bench goes on)
     check(job['live'], figures | {'realtime_x': NUM}, 'live: ')
+
+
+@pytest.mark.ros
+def test_view_load(ros_env: dict[str, str]) -> None:
+    """One round (without, with the live view) on a 1 s scenario after the approach."""
+    import socket
+
+    with socket.socket() as s:  # a free port on 127.0.0.1 for the view
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+    r = run_bench('view_load', '--rounds', '1', '--seconds', '1', '--port', str(port),
+                  '--domain-id', ros_env['ROS_DOMAIN_ID'], timeout_s=600, env=ros_env)
+    check(r, {'rounds': INT, 'scenario': STR, 'runs': LIST, 'without_view': DICT,
+              'with_view': DICT, 'rate_hz_without': NUM, 'rate_hz_with': NUM,
+              'period_p99_us_without': NUM, 'period_p99_us_with': NUM, 'status_rate_hz': NUM,
+              'view_cpu_pct': NUM, 'all_fault_reasons_received': BOOL})
+    loop = {'view': BOOL, 'load_1min': NUM, 'rate_hz': NUM, 'period_p99_us': NUM,
+            'period_max_us': NUM, 'ticks': INT, 'fault_ticks': INT, 'watchdog_trips': INT}
+    without, with_view = r['runs']
+    check(without, loop, 'runs[0]: ')
+    check(with_view, loop | {'view_cpu_pct': NUM, 'status_received': INT, 'status_ticks': INT,
+                             'status_rate_hz': NUM, 'fault_reasons': LIST,
+                             'fault_reasons_received': LIST, 'events': INT,
+                             'events_received': INT}, 'runs[1]: ')
+
+
+@pytest.mark.ros
+def test_cia402_timing(ros_env: dict[str, str]) -> None:
+    """The CiA 402 path free-running at 1 ms for 1 s after the approach."""
+    r = run_bench('cia402_timing', '--duration', '1', '--periods-ms', '1',
+                  '--domain-id', ros_env['ROS_DOMAIN_ID'], timeout_s=600, env=ros_env)
+    run = {'period_ms': NUM, 'held': NUM, 'sync_jitter_p99_us': OPT_NUM,
+           'latency_p99_ms': OPT_NUM, 'latency_received_p99_ms': OPT_NUM, 'frames_per_s': INT,
+           'bus_load_1mbit': NUM, 'contacts': INT, 'faults': INT, 'ran_to_end': BOOL}
+    check(r, run | {'duration_s': NUM, 'runs': LIST})
+    check(r['runs'][0], run, 'runs[0]: ')
+
+
+def test_every_bench_has_its_smoke_test() -> None:
+    """A bench without a test here could break silently: each bench/NAME.py has test_NAME*."""
+    names = {p.stem for p in BENCH.glob('*.py')}
+    tests = {n for n in globals() if n.startswith('test_')}
+    missing = sorted(n for n in names if not any(t == f'test_{n}' or t.startswith(f'test_{n}_')
+                                                  for t in tests))
+    assert not missing, f'benches without a smoke test in tests/test_benches.py: {missing}'

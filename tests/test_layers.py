@@ -27,7 +27,7 @@ SRC = ROOT / 'ros2_ws' / 'src'
 PACKAGES = ('ladrc_contract', 'ladrc_cia402', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
 PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning',
                 'fleet', 'cia402')
-CIA402_PURE = ('ds402.py', 'emcy.py', 'units.py', 'mapping.py')  # ladrc_cia402's plain layer
+CIA402_PURE = ('ds402.py', 'emcy.py', 'units.py', 'mapping.py', 'master.py')  # plain layer
 
 # top-level module -> rosdep key / ROS package name in package.xml
 DEPEND_KEY = {
@@ -43,6 +43,8 @@ DEPEND_KEY = {
     'dask': 'python3-dask-pip',  # the fleet tools: pip on every path (requirements/stock.txt)
     'distributed': 'python3-distributed-pip',
     'pyarrow': 'python3-pyarrow-pip',
+    'foxglove': 'python3-foxglove-sdk-pip',  # the live view: pip on every path
+    'websockets': 'python3-websockets',  # the live view's tests (a Foxglove client)
     'ladrc_msgs': 'ladrc_msgs',
     'ladrc_contract': 'ladrc_contract',
     'ladrc_cia402': 'ladrc_cia402',

@@ -31,9 +31,19 @@ def test_layouts_parse_and_hold_every_signal():
     curves = [c.get('name') for c in root.iter('curve')]
     assert curves == [s for _, sig in PANELS for s in sig]
     fox = json.loads(foxglove_json())
-    paths = [p['value'] for c in fox['configById'].values() for p in c['paths']]
-    assert paths == [s.rpartition('/')[0] + '.' + s.rpartition('/')[2]
-                     for _, sig in PANELS for s in sig]
+    # the Foxglove layout (bags and the live view, docs/live-view.md): every path on a
+    # contract topic is a field of it (tests/ros/test_view_node.py: of the live channel too)
+    store = ladrc_typestore()
+    paths = [p[k] for c in fox['configById'].values() for p in c.get('paths', [])
+             for k in ('value', 'xValuePath') if k in p]
+    assert {'/follow/status.gap_mm', '/follow/status.target_gap_mm',
+            '/axis/velocity_command.velocity_mm_s', '/follow/status.fault_reason',
+            '/sim/truth.x_mm'} <= set(paths)
+    for path in paths:
+        topic, _, field = path.rpartition('.')
+        if topic.lstrip('/') in TOPIC_TYPES:
+            names = [f[0] for f in store.fielddefs[TOPIC_TYPES[topic.lstrip('/')]][1]]
+            assert field in names, path
     # the split tree holds every panel once
     def leaves(node):
         return [node] if isinstance(node, str) else leaves(node['first']) + leaves(node['second'])

@@ -30,7 +30,7 @@ from ladrc_cia402 import emcy, mapping
 from ladrc_cia402.ds402 import MODE_CYCLIC_SYNC_VELOCITY, Goal, State, next_controlword, state_of
 from ladrc_cia402.units import DriveUnits
 from ladrc_sim.cia402.bus import start_bus_server
-from ladrc_sim.cia402.emulator import bus_kwargs, default_eds
+from ladrc_sim.cia402.can_drive import bus_kwargs, default_eds
 from ladrc_sim.headless.scenario import load_scenario
 from ladrc_sim.models.axis import Axis
 import pytest

@@ -13,8 +13,9 @@ setup(
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},
     zip_safe=True,
+    entry_points={'console_scripts': ['driver_node = ladrc_cia402.driver_node:main']},
     maintainer='LADRC follow maintainers',
     maintainer_email='maintainers@ladrc-follow.org',
-    description='CiA 402 drive over CANopen: state machine, EMCY, units, PDO mapping.',
+    description='CiA 402 drive over CANopen: driver node, master, state machine, EMCY, units.',
     license='Apache-2.0',
 )

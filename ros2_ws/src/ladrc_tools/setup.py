@@ -8,6 +8,10 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    # the HTML report's page: its script and style, and uPlot vendored (read with
+    # importlib.resources, so an installed package must carry them)
+    package_data={'ladrc_tools.offline': ['html_report.js', 'html_report.css',
+                                          'vendor/uplot/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -27,7 +31,9 @@ setup(
             'ladrc = ladrc_tools.cli:main',
             'recorder = ladrc_tools.node.recorder_node:main',
             'bringup = ladrc_tools.bringup.bringup:main',
+            'cia402_stack = ladrc_tools.bringup.cia402_stack:main',
             'calibrate_node = ladrc_tools.node.calibrate_node:main',
+            'view_node = ladrc_tools.node.view_node:main',
         ],
     },
 )

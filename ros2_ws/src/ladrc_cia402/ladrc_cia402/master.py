@@ -59,6 +59,8 @@ class DriverParams(Section):
                                runtime=False)
     bus_channel: str = param('ws://127.0.0.1:54701/', '', 'python-can channel: ws://HOST:PORT/ '
                              '(remote) or can0 (socketcan)', runtime=False)
+    eds: str = param('', '', "the drive's EDS or DCF file (its object dictionary: the data types "
+                     'of the objects configured by SDO)', runtime=False)
     node_id: int = param(5, '1', "the drive's CANopen node id", ge=1, le=127, runtime=False)
     period_s: float = param(0.0005, 's', 'the SYNC period (0x1006) = the controller period h_s',
                             ge=0.0001, le=0.1, runtime=False)
@@ -71,13 +73,27 @@ class DriverParams(Section):
                                         'sub 1: counts per mm of gap', gt=0.0, le=1e6,
                                         runtime=False)
     analog_invalid_count: int = param(0x7FFF, '1', 'the analog count of a reading out of range '
-                                      '(valid false)', ge=-0x8000, le=0x7FFF, runtime=False)
+                                      '(valid false, status out of range)', ge=-0x8000,
+                                      le=0x7FFF, runtime=False)
+    analog_contact_count: int = param(-0x8000, '1', "the analog count of the amplifier's "
+                                      'short-circuit output: the nozzle touches the sheet '
+                                      '(status collision)', ge=-0x8000, le=0x7FFF,
+                                      runtime=False)
     rpdo_deadline_ms: int = param(10, 'ms', "the drive's RPDO deadline (0x1400 sub 5): no "
                                   'RPDO for this long -> the drive faults and brakes', ge=1,
                                   le=65535, runtime=False)
     missing_tpdo_cycles: int = param(3, '1', 'free-running: this many cycles in a row '
                                      'without both TPDOs of their SYNC is a drive fault', ge=1,
                                      le=1000, runtime=False)
+    power_at_start: bool = param(True, '', 'power the drive (Operation enabled, zero target) '
+                                 'once it is configured, as a machine powers its axes at '
+                                 'machine-on; false: only while a commander commands',
+                                 runtime=False)
+    watchdog_timeout_s: float = param(0.005, 's', 'no velocity command for this long (counted '
+                                      "in the driver's cycles) -> quick stop and drive_fault",
+                                      gt=0.0, le=1.0, runtime=False)
+    watchdog_recover_s: float = param(0.1, 's', 'after a watchdog stop: commands back for this '
+                                      'long clear it', gt=0.0, le=60.0, runtime=False)
     lockstep: bool = param(False, '', 'lock step: publish step k (sim/lockstep), send the next '
                            'SYNC only once the command answering k arrived', runtime=False)
     lockstep_timeout_s: float = param(10.0, 's', 'lock step: wall-clock wait for a TPDO or the '
@@ -90,6 +106,12 @@ class DriverParams(Section):
                                          'controller in lock step before the first step',
                                          gt=0.0, le=600.0, runtime=False)
     frame_id: str = param('z_axis', '', 'header.frame_id of the samples', runtime=False)
+    thread_priority: int = param(50, '1', 'SCHED_FIFO priority of the cycle thread (the CAN '
+                                 'receive and middleware threads one above); 0 = the normal '
+                                 'scheduler (a refusal is a warning)', ge=0, le=98,
+                                 runtime=False)
+    lock_memory: bool = param(True, '', 'mlockall: no page faults in the cycle',
+                              runtime=False)
 
     def units(self) -> DriveUnits:
         """Return the drive's integer units."""
@@ -97,7 +119,8 @@ class DriverParams(Section):
 
     def analog(self) -> AnalogScale:
         """Return the analog input's scaling."""
-        return AnalogScale(self.analog_counts_per_mm, self.analog_invalid_count)
+        return AnalogScale(self.analog_counts_per_mm, self.analog_invalid_count,
+                           self.analog_contact_count)
 
 
 class ConfigError(RuntimeError):
@@ -112,6 +135,7 @@ class Command:
     enable: bool = False
     admitted: bool = False  # the commander lock admitted it (False: hold zero)
     commanded: bool = False  # a commander owns the axis (goal Operation enabled)
+    quick_stop: bool = False  # the driver's own guards stop the axis (watchdog, commander lock)
 
 
 @dataclass(frozen=True)
@@ -126,6 +150,7 @@ class Sample:
     fault_reason: str
     gap_mm: float
     gap_valid: bool
+    gap_status: int
     state: State | None
     controlword: int
     target: int
@@ -206,6 +231,9 @@ class Master:
         self.missing = 0  # cycles in a row without both TPDOs
         self.cycles = 0
         self.missed_total = 0
+        self.late_total = 0  # cycles whose TPDOs came after the wait (taken by take_late)
+        self._last_fresh = True
+        self._last_cw_target = (0, 0)
         self.emcy_count = 0
         self._reset = False
 
@@ -244,7 +272,7 @@ class Master:
             State.FAULT, State.FAULT_REACTION_ACTIVE, State.QUICK_STOP_ACTIVE)
 
     def _goal(self, cmd: Command) -> Goal:
-        if self.fault_reason or self.emcy_reason:
+        if self.fault_reason or self.emcy_reason or cmd.quick_stop:
             return Goal.QUICK_STOP
         if self.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
             return Goal.QUICK_STOP
@@ -261,8 +289,11 @@ class Master:
             target = self.units.velocity_command(cmd.velocity_mm_s)
         return cw, target
 
-    def cycle(self, cmd: Command, wait_s: float) -> Sample:
+    def cycle(self, cmd: Command, wait_s: float,
+              abort: Callable[[], bool] | None = None) -> Sample:
         """RPDO, SYNC, the TPDOs of that SYNC (at most ``wait_s``); never raises.
+
+        ``abort()`` true ends a long wait early (checked every 50 ms): the node is stopping.
 
         Any exception: a quick-stop controlword with a zero target is sent (if the bus takes
         it), the fault is latched with the exception's text, and the sample reports it.
@@ -276,7 +307,8 @@ class Master:
             self.controlword = cw
             self.send(mapping.SYNC_COB_ID, b'')
             self.cycles += 1
-            fresh = self._await(wait_s)
+            fresh = self._await(wait_s, abort)
+            self._last_fresh, self._last_cw_target = fresh, (cw, target)
             self._take_emcy()
             if fresh:
                 self.missing = 0
@@ -294,6 +326,49 @@ class Master:
             self._exception(exc)
             return self._sample(False, self.controlword, 0)
 
+    def take_late(self) -> Sample | None:
+        """Return the last cycle's sample if its TPDOs came after its wait (before the next SYNC).
+
+        Free-running on a slow bus a TPDO pair may come after the cycle stopped waiting; taken
+        before the next SYNC it is that cycle's sample, late (the driver publishes it with the
+        SYNC's stamp), not a lost one: the missing count goes back by one.
+        """
+        if self._last_fresh:
+            return None
+        try:
+            if not self._await(0.0):
+                return None
+        except Exception as exc:  # noqa: BLE001 -- a statusword of no state: the fault path
+            self._exception(exc)
+            return None
+        self._last_fresh = True
+        self.missing = max(0, self.missing - 1)
+        self.missed_total -= 1
+        self.late_total += 1
+        if (self.fault_reason.startswith('no TPDO') and self.missing == 0
+                and self._stale_fault_allowed):
+            self.fault_reason = ''
+        return self._sample(True, *self._last_cw_target)
+
+    _stale_fault_allowed = False  # a latched "no TPDO" fault stays latched (the reset clears)
+
+    def clear_faults_at_rest(self) -> bool:
+        """Clear latched faults before the first motion, once the bus is healthy again.
+
+        Until a commander first commands motion the axis has only been held at zero: a fault of
+        the start (a TPDO late while the processes came up, the drive's RPDO deadline while the
+        master was configuring) is reset as a master does at start-up, so the first motion gets
+        a clean drive. From the first motion on, a fault stays latched until the operator's
+        reset (:meth:`request_reset`). Returns True when a reset was started.
+        """
+        if not (self.fault_reason or self.emcy_reason or self.state in (
+                State.FAULT, State.FAULT_REACTION_ACTIVE)):
+            return False
+        if self.missing or self._reset:
+            return False
+        self.request_reset()
+        return True
+
     def _exception(self, exc: BaseException) -> None:
         reason = f'driver exception: {type(exc).__name__}: {exc}; quick stop'
         if not self.fault_reason:
@@ -305,14 +380,14 @@ class Master:
         except Exception:  # noqa: BLE001, S110 -- the bus is gone: the drive's deadline stops it
             pass
 
-    def _await(self, wait_s: float) -> bool:
+    def _await(self, wait_s: float, abort: Callable[[], bool] | None = None) -> bool:
         end = time.monotonic() + wait_s
         with self._cv:
             while self._tpdo1 is None or self._tpdo2 is None:
                 left = end - time.monotonic()
-                if left <= 0:
+                if left <= 0 or (abort is not None and abort()):
                     break
-                self._cv.wait(left)
+                self._cv.wait(min(left, 0.05) if abort is not None else left)
             t1, t2 = self._tpdo1, self._tpdo2
         if t1 is None or t2 is None:
             return False
@@ -342,4 +417,5 @@ class Master:
                       velocity_mm_s=self.units.velocity_mm_s(self.velocity),
                       enabled=state is State.OPERATION_ENABLED and not reasons,
                       fault=bool(reasons), fault_reason='; '.join(reasons), gap_mm=gap,
-                      gap_valid=valid, state=state, controlword=cw, target=target)
+                      gap_valid=valid, gap_status=self.analog.status(self.counts), state=state,
+                      controlword=cw, target=target)

@@ -89,21 +89,32 @@ def _toward_zero(x: float) -> int:
 class AnalogScale:
     """The capacitive reading on an analog input (0x6401, INTEGER16): counts per mm.
 
-    ``invalid`` is the count of a reading out of range (the sensor's ``valid`` false).
+    Two counts are signals, not gaps: ``invalid`` (the amplifier's out-of-range output: no
+    sheet under the nozzle, beyond the range, no sensor) and ``contact`` (its short-circuit
+    output: the nozzle touches the sheet). Every other count is a gap.
     """
 
     counts_per_mm: float = 1000.0  # 0..20 mm -> 0..20000 counts
     invalid: int = 0x7FFF
+    contact: int = -0x8000
 
-    def counts(self, mm: float, valid: bool = True) -> int:
-        """Return the count the input reports for ``mm`` (nearest; ``invalid`` if not valid)."""
+    def counts(self, mm: float, valid: bool = True, contact: bool = False) -> int:
+        """Return the count the input reports for ``mm`` (nearest; the signals as such)."""
+        if contact:
+            return self.contact
         if not valid or not math.isfinite(mm):
             return self.invalid
         c = round(mm * self.counts_per_mm)
-        return max(-0x8000, min(0x7FFE, c))
+        return max(self.contact + 1, min(self.invalid - 1, c))
 
     def mm(self, counts: int) -> tuple[float, bool]:
-        """``(mm, valid)`` of a count (NaN, False for ``invalid``)."""
+        """``(mm, valid)`` of a count (NaN, False for ``invalid``; 0, False for ``contact``)."""
         if counts == self.invalid:
             return math.nan, False
+        if counts == self.contact:
+            return 0.0, False
         return counts / self.counts_per_mm, True
+
+    def status(self, counts: int) -> int:
+        """``CapacitiveHeight.status`` of a count: 0 ok, 1 out of range, 2 collision."""
+        return 1 if counts == self.invalid else (2 if counts == self.contact else 0)

@@ -159,3 +159,25 @@ class CdrPacker:
         except (struct.error, UnicodeDecodeError) as exc:
             raise ValueError(f'{self.typename}: {exc}') from None
         return out
+
+
+class Outgoing:
+    """One outgoing message type of a loop: a value list refilled per message, packed to CDR.
+
+    For messages with a ``std_msgs/Header`` first (its stamp the first two values).
+    """
+
+    def __init__(self, typename: str, frame_id: str = '') -> None:
+        self.packer = CdrPacker(typename)
+        self.values = self.packer.defaults()
+        self.index = self.packer.index
+        if 'header.frame_id' in self.index:
+            self.values[self.index['header.frame_id']] = frame_id
+
+    def pack(self, sec: int, nsec: int, **fields: Any) -> bytes:
+        """CDR of the message stamped ``sec.nsec`` with ``fields`` (the rest as last time)."""
+        values, index = self.values, self.index
+        values[0], values[1] = sec, nsec  # header.stamp
+        for name, value in fields.items():
+            values[index[name]] = value
+        return self.packer.pack(values)

@@ -23,6 +23,7 @@ the sender for its own delay.
 
 from __future__ import annotations
 
+import time
 from typing import Any, Iterable
 
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -112,7 +113,13 @@ class SampleWait:
         self._ws = _rclpy.WaitSet(len(self.handles), 0, 0, 0, 0, 0, context.handle)
 
     def wait(self, timeout_ns: int) -> None:
-        """Wait (``timeout_ns`` < 0: without a limit); return early on the first message."""
+        """Wait (``timeout_ns`` < 0: without a limit); return early on the first message.
+
+        With no reader at all, a plain sleep of ``timeout_ns`` (rcl refuses an empty wait set).
+        """
+        if not self.handles:
+            time.sleep(max(0, timeout_ns) * 1e-9 if timeout_ns >= 0 else 0.05)
+            return
         ws = self._ws
         ws.clear_entities()
         entered = []

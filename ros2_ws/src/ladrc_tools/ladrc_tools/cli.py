@@ -25,7 +25,7 @@ from .cli_commissioning import (
 )
 from .cli_common import EXIT_USAGE, CliError
 from .cli_fleet import _add_fleet, _add_fleet_gen, _run_fleet, _run_fleet_gen
-from .cli_job import _add_job, _run_job
+from .cli_job import _add_job, _add_post, _run_job, _run_post
 from .cli_offline import (
     _add_analyze,
     _add_export,
@@ -84,6 +84,9 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
     'job': ('run a cutting job headless (sheet in XY, part program from DXF, the simulated '
             'CNC): per-job figures; --compare a CNC-partner feature on and off; -o job.png',
             _add_job, _run_job),
+    'post': ("a job's part program as G-code for LinuxCNC (pre-offset path, M3/M5 $0, G64 P, "
+             'M62/M63 P2 around the edge-ahead holds): bringup --cnc linuxcnc runs it',
+             _add_post, _run_post),
     'fleet': ("a fleet's bags (folders, globs) on a Dask cluster: one row per bag, machine-day "
               'and machine (Parquet), machines and days that stand out flagged with the rule, '
               'parameter-set changes before/after; fleet.md with plots; only new bags are '

@@ -114,8 +114,49 @@ def write_bag(job: Any, result: Any, path: Path) -> None:
     write_run_bag(result.as_run(), path, dump_params(result.params), run_text(job))
 
 
+def _add_post(p: argparse.ArgumentParser) -> None:
+    p.add_argument('job', help='job file (YAML) or the name of a shipped job')
+    p.add_argument('-o', '--output', required=True,
+                   help='the G-code file to write (.ngc; must not exist)')
+    p.add_argument('--blend-mm', type=float, default=None,
+                   help='G64 P tolerance [0.05]; 0 writes G61 (exact stop)')
+    p.add_argument('--no-holds', action='store_true',
+                   help='no M62/M63 P2 around the edge-ahead stretches')
+
+
+def _run_post(a: argparse.Namespace) -> int:
+    """``ladrc post``: the job's part program as LinuxCNC G-code (ladrc_tools/cam)."""
+    from .cam.postprocess import PostSettings, postprocess
+
+    job = load(a.job)
+    if job.gcode is not None:
+        raise CliError(f'{job.path}: a G-code job already is G-code ({job.gcode})')
+    out = Path(a.output)
+    if out.exists():
+        raise CliError(f'{out} exists already: nothing is overwritten')
+    kw: dict[str, Any] = {'holds': not a.no_holds}
+    if a.blend_mm is not None:
+        kw['blend_mm'] = a.blend_mm
+    settings = PostSettings(**kw)
+    bad = settings.problems()
+    if bad:
+        raise CliError(bad[0])
+    result = postprocess(job, settings)
+    tmp = out.with_name(out.name + '.part')
+    tmp.write_text(result.text, encoding='utf-8')
+    tmp.replace(out)
+    print(json.dumps({'job': job.name, 'gcode': str(out), 'lines': result.lines,
+                      'contours': len(result.contour_lines),
+                      'hold_stretches': sum(len(h) for h in result.holds_mm),
+                      **result.settings}))
+    return 0
+
+
 def _run_job(a: argparse.Namespace) -> int:
     job = load(a.job)
+    if job.gcode is not None:
+        raise CliError(f'{job.path}: a G-code job (gcode: {job.gcode.name}) runs under LinuxCNC '
+                       f'only, which reads its program: bringup --cnc linuxcnc --job {a.job}')
     out_dir = Path(a.output) if a.output else None
     if out_dir is not None and out_dir.exists():
         raise CliError(f'{out_dir} exists already: nothing is overwritten')

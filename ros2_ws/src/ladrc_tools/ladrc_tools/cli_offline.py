@@ -20,12 +20,14 @@ def _add_report(p: argparse.ArgumentParser) -> None:
     p.add_argument('bag', help='bag folder (or a file inside it)')
     p.add_argument('-o', '--output', help='output folder (default: <bag>_report)')
     p.add_argument('-q', '--quiet', action='store_true', help='no progress on stderr')
+    p.add_argument('--no-html', action='store_true',
+                   help='no report.html (the plots zoomable in a browser, from the same pass)')
 
 
 def _run_report(a: argparse.Namespace) -> int:
     from .offline.report import write_report
 
-    out = write_report(a.bag, a.output, progress=not a.quiet)
+    out = write_report(a.bag, a.output, progress=not a.quiet, html=not a.no_html)
     report = json.loads((out / 'report.json').read_text())
     print(json.dumps({'report': str(out), 'messages_lost': report['messages_lost'],
                       **report['metrics'], 'timing': report['timing']}))

@@ -9,7 +9,7 @@ the recorder is stopped, then launch.
     ros2 launch ladrc_tools axis.launch.py params:=/etc/ladrc/head1.yaml bag:=/data/shift1
 """
 
-from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS, axis_node_specs
+from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS, axis_node_specs, view_spec
 from ladrc_tools.bringup.launching import declare_arguments, launch_nodes, stop_in_order
 from launch import LaunchDescription
 from launch.actions import OpaqueFunction
@@ -23,8 +23,11 @@ def _nodes(context):
     def arg(name):
         return LaunchConfiguration(name).perform(context)
 
-    nodes = launch_nodes(axis_node_specs(arg('params') or None, arg('bag') or None,
-                                         arg('loop'), arg('storage'), arg('hardware_id')))
+    specs = axis_node_specs(arg('params') or None, arg('bag') or None, arg('loop'),
+                            arg('storage'), arg('hardware_id'))
+    if arg('view').strip().lower() in ('true', '1', 'yes'):  # the live view, 127.0.0.1 only
+        specs.insert(0, view_spec(int(arg('view_port'))))
+    nodes = launch_nodes(specs)
     return list(nodes.values()) + stop_in_order(nodes, first='ladrc_follow')
 
 

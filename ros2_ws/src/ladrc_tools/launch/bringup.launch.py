@@ -10,10 +10,11 @@ before it closes the bag, so the zero command is in the bag then too. Isolation
 
     ros2 launch ladrc_tools bringup.launch.py scenario:=showcase bag:=/tmp/run1
     ros2 launch ladrc_tools bringup.launch.py scenario:=showcase lockstep:=true
+    ros2 launch ladrc_tools bringup.launch.py scenario:=showcase view:=true   # + live view
     ros2 launch ladrc_tools bringup.launch.py --show-args
 """
 
-from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS, node_specs
+from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS, node_specs, view_spec
 from ladrc_tools.bringup.launching import declare_arguments, launch_nodes, stop_in_order
 from launch import LaunchDescription
 from launch.actions import OpaqueFunction
@@ -32,6 +33,8 @@ def _nodes(context):
             spec.parameters['hardware_id'] = arg('hardware_id')
         elif spec.name == 'ladrc_recorder':  # the bag's machine id (bags/provenance.py)
             spec.parameters['machine_id'] = arg('hardware_id')
+    if arg('view').strip().lower() in ('true', '1', 'yes'):  # the live view, 127.0.0.1 only
+        specs.insert(0, view_spec(int(arg('view_port'))))
     nodes = launch_nodes(specs)
     return list(nodes.values()) + stop_in_order(nodes, first='ladrc_sim')
 

@@ -1,19 +1,20 @@
 """The follow node's ROS parameters: its own and the controller's, as ROS declares them.
 
-:class:`NodeParams` are the node's start-up settings; :func:`descriptor` and :func:`ros_value`
-turn the one declaration of each controller parameter (``ladrc_contract/schema.py``) into its ROS
-descriptor and value; :func:`params_file_problem` reads ``--params-file`` before rcl does.
+:class:`NodeParams` are the node's start-up settings; ``descriptor`` and ``ros_value``
+(``ladrc_contract/ros_params.py``) turn the one declaration of each controller parameter
+(``ladrc_contract/schema.py``) into its ROS descriptor and value; :func:`params_file_problem`
+reads ``--params-file`` before rcl does.
 """
 
 from __future__ import annotations
 
-from array import array
 from dataclasses import dataclass
-from typing import Any
 
-from ladrc_contract.schema import Entry, param
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from ladrc_contract.ros_params import descriptor, ros_value
+from ladrc_contract.schema import param
 import yaml
+
+__all__ = ['LOOP_MODES', 'NodeParams', 'descriptor', 'ros_value', 'params_file_problem']
 
 LOOP_MODES = ('sync', 'deadline', 'lockstep')
 
@@ -57,41 +58,6 @@ class NodeParams:
     hardware_id: str = param('z_axis', '', 'hardware_id of the /diagnostics status (named '
                              'after the node: <namespace/name>: follow loop)', runtime=False)
 
-
-
-_ROS_TYPE = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-             float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
-
-
-def descriptor(entry: Entry) -> ParameterDescriptor:
-    """Return the ROS descriptor of one declared parameter (type, range, unit, read-only)."""
-    s = entry.spec
-    unit = f' [{s.unit}]' if s.unit else ''
-    seed = f' ({s.seed})' if s.seed else ''
-    desc = ParameterDescriptor(name=entry.name, description=f'{s.description}{unit}{seed}',
-                               read_only=not s.runtime)
-    desc.type = _ROS_TYPE.get(entry.type, ParameterType.PARAMETER_DOUBLE_ARRAY)
-    if s.range_text():
-        desc.additional_constraints = ('one of ' if s.choices else 'range ') + s.range_text()
-    if s.choices or s.lower is None or s.upper is None:
-        return desc
-    if entry.type is int:
-        desc.integer_range = [IntegerRange(from_value=int(s.lower), to_value=int(s.upper),
-                                           step=1)]
-    elif entry.type is float:
-        desc.floating_point_range = [FloatingPointRange(from_value=float(s.lower),
-                                                        to_value=float(s.upper), step=0.0)]
-    return desc
-
-
-def ros_value(entry: Entry, value: Any) -> Any:
-    """Return a value as ROS wants it for this entry: floats for float fields, lists for arrays."""
-    if entry.type is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if isinstance(value, (tuple, list, array)) and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        return [float(v) for v in value]
-    return value  # anything else goes to rclpy's type check as it is
 
 
 def params_file_problem(args: list[str]) -> str:

@@ -73,12 +73,25 @@ def _accepts(port: int) -> bool:
         return False
 
 
+def _fifo(priority: int):
+    """Return a ``preexec_fn`` that runs the child at SCHED_FIFO ``priority`` (or as it is)."""
+    def apply() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError):
+            pass
+    return apply
+
+
 def start_bus_server(log_path: Path | str | None = None, timeout_s: float = 60.0,
-                     attempts: int = 3) -> BusServer:
+                     attempts: int = 3, fifo_priority: int = 51) -> BusServer:
     """Start python-can-remote on a free port of 127.0.0.1; return when it accepts.
 
     Its log (it logs at INFO) goes to ``log_path`` or is discarded. A port taken between the
     choice and the bind (the server exits) is retried with another, ``attempts`` times.
+    ``fifo_priority``: the server (every thread: it relays each frame) runs at SCHED_FIFO, as
+    the drive's and the driver's receive threads (the loops' 50 + 1), so loops at real-time
+    priority elsewhere do not hold up the bus; 0 or a refusal: the normal scheduler.
     """
     last = ''
     for _ in range(attempts):
@@ -88,7 +101,8 @@ def start_bus_server(log_path: Path | str | None = None, timeout_s: float = 60.0
             proc = subprocess.Popen(
                 [sys.executable, '-m', 'can_remote', '-i', 'virtual', '-c', '0', '-H', HOST,
                  '-p', str(port)], stdout=out, stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL)
+                stdin=subprocess.DEVNULL,
+                preexec_fn=_fifo(fifo_priority) if fifo_priority > 0 else None)
         finally:
             if out is not subprocess.DEVNULL:
                 out.close()

@@ -98,6 +98,7 @@ class Cia402Device:
     transitions: list[int] = field(default_factory=list)  # the standard's numbers, in order
     _controlword: int = 0  # the last one applied (for the bit-7 edge)
     _fault: Emcy | None = None  # raised, not yet entered
+    _before: State = State.NOT_READY_TO_SWITCH_ON  # the state when the period began
 
     # ---- configuration (by SDO) -------------------------------------------------------
     def set_mode(self, mode: int) -> None:
@@ -132,27 +133,43 @@ class Cia402Device:
 
     # ---- one period ---------------------------------------------------------------------
     def step(self, controlword: int, target_velocity: int) -> None:
-        """One drive period: the state machine (one transition at most), then the axis.
+        """One drive period over the device's own plant: :meth:`command`, the axis, :meth:`settle`.
 
         A braking state (Quick stop active, Fault reaction active) entered in this period ends
         at the earliest in the next one, at standstill: one transition per period.
         """
-        before = self.state
+        cmd = self.command(controlword, target_velocity)
+        # quick stop, fault reaction, not powered, no mode: brake to a stop
+        self.plant.step(0.0 if cmd is None else cmd, enabled=cmd is not None)
+        self.settle(self.plant.velocity_mm_s == 0.0)
+
+    def command(self, controlword: int, target_velocity: int) -> float | None:
+        """Run the period's state machine (one transition at most); return the velocity (mm/s).
+
+        ``None``: the axis is not driven by the target this period (not in Operation enabled,
+        or no velocity mode): it brakes at its deceleration limit. In Operation enabled the
+        target (velocity units) is clipped to ``max_velocity_units`` and converted to mm/s.
+        Whoever moves the axis (the plant here, the headless runner in the emulator) calls
+        :meth:`settle` with the axis at rest or not once the period is applied.
+        """
+        self._before = self.state
         self._transition(controlword)
         self._controlword = controlword
-        s = self.state
-        if s is State.OPERATION_ENABLED and self.mode in SUPPORTED_MODES:
+        if self.state is State.OPERATION_ENABLED and self.mode in SUPPORTED_MODES:
             lim = self.max_velocity_units
             t = lim if target_velocity > lim else (-lim if target_velocity < -lim
                                                    else target_velocity)
-            self.plant.step(self.units.velocity_mm_s(t), enabled=True)
-        else:
-            # quick stop, fault reaction, not powered, no mode: brake to a stop
-            self.plant.step(0.0, enabled=False)
-        at_rest = self.plant.velocity_mm_s == 0.0 and s is before
-        if s is State.QUICK_STOP_ACTIVE and at_rest and self.quick_stop_option in (0, 1, 2, 3, 4):
+            return self.units.velocity_mm_s(t)
+        return None
+
+    def settle(self, at_rest: bool) -> None:
+        """End a braking state at standstill (12, 14), if no transition was made this period."""
+        s = self.state
+        if s is not self._before or not at_rest:
+            return
+        if s is State.QUICK_STOP_ACTIVE and self.quick_stop_option in (0, 1, 2, 3, 4):
             self._go(State.SWITCH_ON_DISABLED, 12)
-        elif s is State.FAULT_REACTION_ACTIVE and at_rest:
+        elif s is State.FAULT_REACTION_ACTIVE:
             self._go(State.FAULT, 14)
 
     def _go(self, state: State, number: int) -> None:

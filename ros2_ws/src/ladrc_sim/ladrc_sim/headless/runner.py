@@ -231,6 +231,9 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
     # stop, e.g. from its command watchdog; the axis then brakes at a_max as when faulted
     c_quick_stop = getattr(controller, 'quick_stop', None)
     c_quick_stop = c_quick_stop if callable(c_quick_stop) else None
+    # optional: a drive on a bus takes the scenario's drive events with their error code
+    c_drive_event = getattr(controller, 'drive_event', None)
+    c_drive_event = c_drive_event if callable(c_drive_event) else None
     new_tick = tuple.__new__
     enabled, fault = True, False
     target = math.nan
@@ -264,6 +267,8 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
                                          a['target_gap_mm']))
                 elif name == 'drive':
                     enabled, fault = a['enabled'], a['fault']
+                    if c_drive_event is not None:
+                        c_drive_event(**a)
                 elif name == 'plate_kick':
                     p_v += a['velocity_mm_s']  # Plate.kick
                 elif name == 'gas':

@@ -76,7 +76,10 @@ WAVE_KINDS = ('sine', 'chirp', 'square')
 SIM_EVENTS: dict[str, dict[str, tuple]] = {
     'coverage': {'value': (float, REQUIRED, 0.0, 1.0), 'ramp_s': (float, 0.0, 0.0, None)},
     'sensor_gain': {'value': (float, REQUIRED, 0.0, 10.0), 'ramp_s': (float, 0.0, 0.0, None)},
-    'drive': {'enabled': (bool, True, None, None), 'fault': (bool, False, None, None)},
+    # error_code: the fault's CiA 402 error code (0x603F, its EMCY) on a drive on a bus
+    # (ladrc_sim/cia402/can_drive.py); 0 = 0x5000 device hardware
+    'drive': {'enabled': (bool, True, None, None), 'fault': (bool, False, None, None),
+              'error_code': (int, 0, 0, 0xFFFF)},
     'sensor_dropout': {'duration_s': (float, REQUIRED, 0.0, None)},
     'sensor_freeze': {'duration_s': (float, REQUIRED, 0.0, None)},
     'encoder_dropout': {'duration_s': (float, REQUIRED, 0.0, None)},

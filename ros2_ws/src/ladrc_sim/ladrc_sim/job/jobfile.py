@@ -11,6 +11,12 @@ the sheet: the CNC's work offset), ``seed``, and ``limits`` (where the job's geo
 the safety bar impossible: the bound that proves it, docs/job-world.md); how the DXF is read,
 declared once in :class:`DrawingKeys`: ``dxf_units`` and ``layers``. Every problem is one
 line naming the file and the key (:class:`JobError`).
+
+``gcode`` instead of ``dxf`` (relative to the job file): the job's program is a G-code file of
+the user's, read by LinuxCNC's own interpreter (``bringup --cnc linuxcnc``, docs/linuxcnc.md),
+never by a parser here: such a job has the sheet, the heights and the feeds of its file but no
+part program (no contours: the world lays the kerfs where the CNC's samples say the beam cut,
+and no part drops out); ``time_budget_s`` bounds its run (default 600 s for a G-code job).
 """
 
 from __future__ import annotations
@@ -75,7 +81,7 @@ class Job:
     path: Path
     name: str
     description: str
-    dxf: Path
+    dxf: Path | None  # None: a G-code job (``gcode``)
     width_mm: float
     height_mm: float
     surface: SurfaceParams
@@ -94,6 +100,8 @@ class Job:
     seed: int = 1
     limits: dict[str, Any] = field(default_factory=dict)
     drawing: DrawingKeys = DrawingKeys()
+    gcode: Path | None = None  # the user's G-code program (LinuxCNC reads it), instead of dxf
+    time_budget: float | None = None  # the job file's time_budget_s, if it gives one
 
     def plate(self):
         """Return the plate's outline (a rectangle from the origin)."""
@@ -104,6 +112,11 @@ class Job:
         cached = self.__dict__.get('_program')
         if cached is not None:
             return cached
+        if self.gcode is not None:  # LinuxCNC reads the program: no contours here
+            program = Program(str(self.gcode), 'mm', 1.0, (), (),
+                              (0.0, 0.0, self.width_mm, self.height_mm), (), 'G-code')
+            object.__setattr__(self, '_program', program)
+            return program
         try:
             program = load_program(self.dxf, kerf_mm=self.kerf_mm, lead_in_mm=self.lead_in_mm,
                                    micro_joint_mm=self.micro_joint_mm,
@@ -119,6 +132,10 @@ class Job:
 
     def time_budget_s(self, program: Program) -> float:
         """Return a generous bound of the job's time (its run stops there, unfinished)."""
+        if self.time_budget is not None:
+            return self.time_budget
+        if self.gcode is not None:
+            return GCODE_TIME_BUDGET_S
         c = self.cnc
         cut = sum(k.length_mm + 50.0 for k in program.contours) / c.feed_mm_s
         pierce = len(program.contours) * (sum(c.pierce_dwell_s) + c.thc_delay_s + 2.0)
@@ -172,7 +189,9 @@ def _section(cls: type, data: Any, where: str) -> Any:
 
 _TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
         'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'dxf_origin_mm', 'seed',
-        'limits', *(f.name for f in fields(DrawingKeys)))
+        'limits', *(f.name for f in fields(DrawingKeys)), 'gcode', 'time_budget_s')
+GCODE_TIME_BUDGET_S = 600.0
+"""A G-code job's time bound when its file gives no ``time_budget_s``."""
 
 
 def _xy(data: dict, key: str, path: Path) -> tuple[float, float]:
@@ -199,9 +218,16 @@ def load_job(path: str | Path) -> Job:
     unknown = sorted(set(data) - set(_TOP))
     if unknown:
         raise JobError(f'{path}: {unknown[0]}: unknown key (allowed: {", ".join(_TOP)})')
-    for req in ('name', 'dxf', 'sheet'):
+    for req in ('name', 'sheet'):
         if req not in data:
             raise JobError(f'{path}: {req}: missing')
+    if ('dxf' in data) == ('gcode' in data):
+        raise JobError(f'{path}: dxf or gcode: the program, one of them '
+                       + ('(both given)' if 'dxf' in data else '(neither given)'))
+    budget = data.get('time_budget_s')
+    if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, float))
+                               or not 1.0 <= budget <= 86400.0):
+        raise JobError(f'{path}: time_budget_s: a number of 1..86400 s, got {budget!r}')
     sheet = data['sheet']
     if not isinstance(sheet, dict):
         raise JobError(f'{path}: sheet: must be a mapping')
@@ -225,9 +251,11 @@ def load_job(path: str | Path) -> Job:
     controller = data.get('controller') or {}
     if not isinstance(controller, dict):
         raise JobError(f'{path}: controller: a mapping of parameter: value')
-    dxf = path.parent / str(data['dxf'])
-    if not dxf.is_file():
-        raise JobError(f'{path}: dxf: {dxf} does not exist')
+    key = 'dxf' if 'dxf' in data else 'gcode'
+    source = path.parent / str(data[key])
+    if not source.is_file():
+        raise JobError(f'{path}: {key}: {source} does not exist')
+    dxf, gcode = (source, None) if key == 'dxf' else (None, source)
     tips = data.get('tip_parts') or []
     if not isinstance(tips, list) or any(isinstance(x, bool) or not isinstance(x, int)
                                          for x in tips):
@@ -248,7 +276,8 @@ def load_job(path: str | Path) -> Job:
                start_xy=start, dxf_origin_mm=origin,
                start_height_mm=float(data.get('start_height_mm', 10.0)),
                seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}),
-               drawing=drawing)
+               drawing=drawing, gcode=gcode,
+               time_budget=float(budget) if budget is not None else None)
 
 
 JOBS_DIR = Path(__file__).resolve().parent / 'jobs'
@@ -276,5 +305,8 @@ def find_job(name: str | Path) -> Job:
 
 def run_text(job: Job) -> str:
     """Return the job's ``run/scenario`` text: its job file and its DXF, as written."""
+    if job.gcode is not None:  # a G-code job: its program, as written
+        return yaml.safe_dump({'job': job.path.read_text(encoding='utf-8'),
+                               'gcode': job.gcode.read_text(encoding='utf-8', errors='replace')})
     return yaml.safe_dump({'job': job.path.read_text(encoding='utf-8'),
                            'dxf': job.dxf.read_text(encoding='utf-8', errors='replace')})

@@ -54,10 +54,10 @@ import re
 
 import ezdxf
 from ezdxf import path as dxf_path
+from ezdxf.enums import InsertUnits
 from ezdxf.lldxf.const import DXFError, acad_release
 from ezdxf.lldxf.tagger import ascii_tags_loader
 from ezdxf.math import Matrix44, Vec3, fit_points_to_cad_cv
-from ezdxf.units import unit_name
 import numpy as np
 import shapely
 from shapely.geometry import LinearRing, LineString, Point, Polygon
@@ -212,7 +212,9 @@ def _units(doc, path: str | Path, name: str, given: str | None) -> tuple[str, fl
     if code:  # the file says
         if code not in UNITS:
             job = f'; dxf_units: {given} in the job file does not apply' if given else ''
-            what = unit_name(code).lower() if 0 < code <= 24 else 'no unit'
+            # the enum's own name: ezdxf 1.1.3's unit_name() reads str(IntEnum), which is the
+            # number on Python >= 3.11 ('unitless' for every code)
+            what = InsertUnits(code).name.lower() if 0 < code <= 24 else 'no unit'
             raise ProgramError(f'{name}: drawing units not supported ($INSUNITS={code}, '
                                f'{what}): set them to mm, cm, m or inches ($INSUNITS 4, 5, 6, '
                                f'1){job}')

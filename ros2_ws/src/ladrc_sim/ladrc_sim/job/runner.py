@@ -144,6 +144,12 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     ``cnc``: on the wire (the sim node's link to the CNC node).
     """
     h = H_S
+    if getattr(job, 'gcode', None) is not None and cnc is None:
+        from .jobfile import JobError
+
+        raise JobError(f'{job.path}: a G-code job (gcode: {job.gcode.name}) runs under '
+                       f'LinuxCNC only, which reads its program: bringup --cnc linuxcnc --job '
+                       f'{job.path}')
     program = job.program()
     sheet = SheetXY(job.plate(), job.surface, nozzle_diameter_mm=job.sensor.nozzle_diameter_mm)
     sheet.prepare([c.region for c in program.contours])  # what drops out: cheap in the loop

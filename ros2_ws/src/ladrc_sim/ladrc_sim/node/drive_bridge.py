@@ -63,8 +63,8 @@ class DriveBridge:
         # samples and steps (a separate CNC)
         others = (getattr(node, name, None) for name in ('status_reader', 'cnc_reader',
                                                          'cnc_step_reader', 'cnc_job_reader'))
-        self._wait = SampleWait(node.context,
-                                (node.cmd_reader, *(r for r in others if r is not None)))
+        self._wait = SampleWait(node.context, tuple(
+            r for r in (node.cmd_reader, *others) if r is not None))
         self.running = True
         h = node.h_s
         self.period_ns = int(round(h * 1e9))

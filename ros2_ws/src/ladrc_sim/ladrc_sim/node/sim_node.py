@@ -47,7 +47,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
-from ladrc_contract.cdr import CdrPacker
+from ladrc_contract.cdr import CdrPacker, Outgoing
 from ladrc_contract.commander_lock import describe
 from ladrc_contract.loop_io import LoopNode
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
@@ -97,24 +97,6 @@ from .job_drive import JobDrive
 from .remote_cnc import RemoteCnc
 
 
-class _Outgoing:
-    """One outgoing message type: a value list refilled per message, packed to CDR."""
-
-    def __init__(self, typename: str, frame_id: str) -> None:
-        self.packer = CdrPacker(typename)
-        self.values = self.packer.defaults()
-        self.values[self.packer.index['header.frame_id']] = frame_id
-        self.index = self.packer.index
-
-    def pack(self, sec: int, nsec: int, **fields: Any) -> bytes:
-        """CDR of the message stamped ``sec.nsec`` with ``fields`` (the rest as last time)."""
-        values, index = self.values, self.index
-        values[0], values[1] = sec, nsec  # header.stamp
-        for name, value in fields.items():
-            values[index[name]] = value
-        return self.packer.pack(values)
-
-
 class SimNode(LoopNode):
     """Publishes the simulated axis; subscribes to velocity commands; plays a scenario."""
 
@@ -148,6 +130,16 @@ class SimNode(LoopNode):
         # lock step (module docstring): the sim waits for each answer, its clock is the step
         self.declare_parameter('lockstep', False)
         self.declare_parameter('lockstep_timeout_s', 10.0)
+        # the drive: '' = on ROS (this node publishes the axis topics), 'cia402' = the emulated
+        # CiA 402 drive on a CAN bus (can_bridge.py), mastered by a driver node
+        self.declare_parameter('drive', '')
+        self.declare_parameter('can_bus', 'ws://127.0.0.1:54701/')
+        self.declare_parameter('can_node_id', 5)
+        self.declare_parameter('can_eds', '')
+        self.drive_kind = str(self.get_parameter('drive').value)
+        if self.drive_kind not in ('', 'cia402'):
+            raise ValueError(f"drive {self.drive_kind!r}: '' (ROS) or 'cia402'")
+        on_ros = self.drive_kind == ''
         self.lockstep = bool(self.get_parameter('lockstep').value)
         self.lockstep_timeout_s = float(self.get_parameter('lockstep_timeout_s').value)
         if not self.lockstep_timeout_s > 0:
@@ -157,7 +149,14 @@ class SimNode(LoopNode):
         self.scenario = None if self.job else load_scenario(self.get_parameter('scenario').value)
         self.run_name = self.job.name if self.job else self.scenario.name
         self.sensor = self.job.sensor if self.job else self.scenario.sensor
-        self.h_s = 0.0005
+        # the drive's period: a scenario runs at it (a job at the job world's 0.5 ms); the
+        # emulated CiA 402 drive's SYNC period (0x1006) must equal it
+        self.declare_parameter('h_s', 0.0005)
+        self.h_s = float(self.get_parameter('h_s').value)
+        if not 1e-4 <= self.h_s <= 0.01:
+            raise ValueError(f'h_s {self.h_s:g}: must be in [0.0001, 0.01] s')
+        if self.job is not None and abs(self.h_s - 0.0005) > 1e-12:
+            raise ValueError("h_s: a job runs at 0.0005 s (the job world's period)")
         self.watchdog_timeout_s = float(self.get_parameter('watchdog_timeout_s').value)
         self.watchdog_recover_s = float(self.get_parameter('watchdog_recover_s').value)
         if not self.watchdog_timeout_s > 0:
@@ -165,8 +164,10 @@ class SimNode(LoopNode):
         self.frame_id = self.get_parameter('frame_id').value
         self.raw_only = bool(self.get_parameter('raw_only').value)
         high_rate = to_rclpy(qos.LOCKSTEP_HIGH_RATE if self.lockstep else qos.HIGH_RATE)
-        self.pub_gap = self.create_publisher(CapacitiveHeight, GAP_TOPIC, high_rate)
-        self.pub_fb = self.create_publisher(AxisFeedback, FEEDBACK_TOPIC, high_rate)
+        self.pub_gap = (self.create_publisher(CapacitiveHeight, GAP_TOPIC, high_rate)
+                        if on_ros else None)
+        self.pub_fb = (self.create_publisher(AxisFeedback, FEEDBACK_TOPIC, high_rate)
+                       if on_ros else None)
         self.pub_truth = self.create_publisher(SimTruth, TRUTH_TOPIC, high_rate)
         self.pub_step = (self.create_publisher(LockStep, LOCKSTEP_TOPIC, high_rate)
                          if self.lockstep else None)
@@ -201,11 +202,12 @@ class SimNode(LoopNode):
         # the drive's command input, taken from by the loop thread (DriveBridge.take_commands)
         self.cmd_reader = self.create_loop_reader(
             VelocityCommand, COMMAND_TOPIC,
-            to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.DRIVE_COMMAND_INPUT))
+            to_rclpy(qos.LOCKSTEP_COMMAND_INPUT if self.lockstep else qos.DRIVE_COMMAND_INPUT)
+        ) if on_ros else None
         self.cmd_cdr = CdrPacker('ladrc_msgs/msg/VelocityCommand')
         self.cmd_fields = [self.cmd_cdr.index[n] for n in COMMAND_FIELDS]
         # what the loop publishes: pre-serialized CDR from one value list per message
-        self._out = {name: _Outgoing(f'ladrc_msgs/msg/{name}', frame)
+        self._out = {name: Outgoing(f'ladrc_msgs/msg/{name}', frame)
                      for name, frame in (('CapacitiveHeight', self.frame_id),
                                          ('AxisFeedback', self.frame_id),
                                          ('SimTruth', self.frame_id), ('LockStep', ''),
@@ -324,6 +326,29 @@ class SimNode(LoopNode):
             collision=bool(true_gap <= 0.0), x_mm=float(truth[6]), y_mm=float(truth[7])))
         bridge.truth_seq += 1
 
+    def publish_step_truth(self, seq: int, tick, truth: tuple, stamp_ns: int | None = None
+                           ) -> None:
+        """Publish step ``seq``'s lock step and truth only: the drive is on a CAN bus.
+
+        The driver publishes one sample pair per SYNC (``seq`` = the step), both fresh.
+        """
+        if stamp_ns is None:
+            stamp_ns = self.get_clock().now().nanoseconds
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        out = self._out
+        if self.pub_step is not None:
+            self.pub_step.publish(out['LockStep'].pack(
+                sec, nsec, step=seq, gap_seq=seq, gap_fresh=True, encoder_seq=seq,
+                encoder_fresh=True, cnc_seq=self.cnc_seq, cnc_fresh=self.cnc_fresh))
+        self.cnc_fresh = False
+        true_gap, sheet, nozzle, coverage, plate_velocity = (float(v) for v in truth[:5])
+        bridge = self.bridge
+        self.pub_truth.publish(out['SimTruth'].pack(
+            sec, nsec, seq=bridge.truth_seq, true_gap_mm=true_gap, sheet_mm=sheet,
+            nozzle_mm=nozzle, edge_coverage=coverage, plate_velocity_mm_s=plate_velocity,
+            collision=bool(true_gap <= 0.0), x_mm=float(truth[6]), y_mm=float(truth[7])))
+        bridge.truth_seq += 1
+
     def publish_cnc(self, cnc, x_mm: float, y_mm: float) -> None:
         """Publish the CNC's motion sample of this tick (``CncInput``) on ``cnc/motion``.
 
@@ -358,10 +383,11 @@ class SimNode(LoopNode):
 
     def lockstep_matched(self) -> bool:
         """Lock step: a controller reads the samples and the steps, and commands."""
-        return (self.pub_step.get_subscription_count() > 0
-                and self.pub_gap.get_subscription_count() > 0
-                and self.pub_fb.get_subscription_count() > 0
-                and self.count_publishers(self.cmd_reader.topic_name) > 0
+        drive_ok = (self.drive_kind == 'cia402'  # the driver waits for the controller itself
+                    or (self.pub_gap.get_subscription_count() > 0
+                        and self.pub_fb.get_subscription_count() > 0
+                        and self.count_publishers(self.cmd_reader.topic_name) > 0))
+        return (self.pub_step.get_subscription_count() > 0 and drive_ok
                 and (self.job is None or self.count_publishers(STATUS_TOPIC) > 0)
                 and (self.pub_cnc is None or self.pub_cnc.get_subscription_count() > 0)
                 and (not self.separate_cnc
@@ -408,6 +434,21 @@ def write_figures(path: str, figures: dict) -> None:
     tmp.replace(path)
 
 
+def _can_bridge(node: SimNode, realtime: bool):
+    """Return the emulated CiA 402 drive on the node's CAN bus (can_bridge.py), booted."""
+    from ..cia402.can_drive import CanDrive, connect
+    from .can_bridge import CanDriveBridge
+
+    network = connect(str(node.get_parameter('can_bus').value))
+    eds = str(node.get_parameter('can_eds').value) or None
+    drive = CanDrive(network, int(node.get_parameter('can_node_id').value), eds,
+                     lockstep=node.lockstep, lockstep_timeout_s=node.lockstep_timeout_s,
+                     h_s=node.h_s)
+    drive.boot()
+    node.network = network
+    return CanDriveBridge(node, drive, realtime)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``ros2 run ladrc_sim sim_node --ros-args -p scenario:=showcase``."""
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
@@ -418,6 +459,16 @@ def main(argv: list[str] | None = None) -> int:
         except (ScenarioError, JobError, ValueError) as exc:
             print(f'sim_node: {exc}', file=sys.stderr)
             return 2
+        realtime = bool(node.get_parameter('realtime').value)
+        bridge = None
+        if node.drive_kind == 'cia402':
+            # the bus first: its receive thread (python-can's notifier) is then scheduled as
+            # the middleware's, one above the loop (it answers each SYNC)
+            try:
+                bridge = _can_bridge(node, realtime)
+            except (ValueError, OSError) as exc:
+                print(f'sim_node: CiA 402 drive: {exc}', file=sys.stderr)
+                return 2
         cpu = int(node.get_parameter('cpu').value)
         # lock step: no SCHED_FIFO (ladrc_follow's follow_node.main says why)
         priority = 0 if node.lockstep else int(node.get_parameter('thread_priority').value)
@@ -425,7 +476,8 @@ def main(argv: list[str] | None = None) -> int:
                                            bool(node.get_parameter('lock_memory').value))
         for text in warnings:
             node.get_logger().warning(text)
-        bridge = DriveBridge(node, bool(node.get_parameter('realtime').value))
+        if bridge is None:
+            bridge = DriveBridge(node, realtime)
         node.attach(bridge)
         # services, the scenario's service calls and /diagnostics: a thread of their own, one
         # below a real-time loop (ladrc_contract.service_thread)
@@ -469,7 +521,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 node.get_logger().info(f'scenario {node.scenario.name}: '
                                        f'{node.scenario.duration_s} s')
-                result = run(node.scenario, bridge)
+                result = run(node.scenario, bridge, h_s=node.h_s)
                 node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
         except StopSimulation:
             pass
@@ -495,6 +547,12 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if services is not None:
             services.close()
+        network = getattr(node, 'network', None)
+        if network is not None:
+            try:
+                network.disconnect()
+            except Exception:  # noqa: BLE001, S110 -- the bus is gone already
+                pass
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

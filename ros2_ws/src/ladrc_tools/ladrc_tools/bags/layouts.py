@@ -3,10 +3,16 @@
     python -m ladrc_tools.bags.layouts          # rewrites config/plotjuggler_layout.xml and
                                                 # config/foxglove_layout.json (source tree)
 
-The shipped files are these functions' output (a test compares them). Panels: gap (reading,
-target, fused, true gap from the sim), TD (x1, x2), ESO (z1, z2, z3), command (applied,
-unlimited, u0), state (state, limit flags, followed). Topic fields as ``ros2 bag record`` names
-them (``/follow/status``).
+The shipped files are these functions' output (a test compares them). PlotJuggler's panels:
+gap (reading, target, fused, true gap from the sim), TD (x1, x2), ESO (z1, z2, z3), command
+(applied, unlimited, u0), state (state, limit flags, followed). Topic fields as ``ros2 bag
+record`` names them (``/follow/status``).
+
+Foxglove's (:func:`foxglove_json`, docs/live-view.md): one layout for a bag and for the live
+view (view_node), whose channels carry the topics' names and fields: gap and target, command,
+a state timeline (state, sub-state, followed, fault and hold reasons), the fault log (the
+view's ``/view/log``; a bag shows the reasons on the timeline), the events, the XY path of a
+job coloured by the gap error, and the operator's calls (start, stop, reset, lift).
 """
 
 from __future__ import annotations
@@ -56,30 +62,109 @@ def plotjuggler_xml() -> str:
     return '\n'.join(lines) + '\n'
 
 
-def foxglove_json() -> str:
-    """Return a Foxglove layout: one Plot panel per entry of :data:`PANELS`, stacked."""
-    config = {}
-    ids = []
-    for i, (title, signals) in enumerate(PANELS):
-        pid = f'Plot!ladrc{i}'
-        ids.append(pid)
-        config[pid] = {
-            'title': title, 'followingViewWidth': 10, 'showLegend': True,
+TITLE = 'foxglovePanelTitle'
+"""Where a panel's title lives in the layout file's panel settings."""
+
+
+def _plot(title: str, series: list[tuple[str, str, str]], **extra: object) -> dict:
+    return {TITLE: title, 'followingViewWidth': 10, 'showLegend': True,
             'legendDisplay': 'floating', 'isSynced': True, 'xAxisVal': 'timestamp',
-            'paths': [{'value': _fox_path(s), 'enabled': True, 'timestampMethod': 'receiveTime',
-                       'color': COLORS[j % len(COLORS)]} for j, s in enumerate(signals)],
-        }
-    layout: object = ids[-1]
-    for pid in reversed(ids[:-1]):
-        layout = {'first': pid, 'second': layout, 'direction': 'column',
-                  'splitPercentage': 100.0 / (1 + _count(layout))}
+            'paths': [{'value': v, 'label': label, 'enabled': True,
+                       'timestampMethod': 'receiveTime', 'color': color}
+                      for v, label, color in series], **extra}
+
+
+def _states(names: dict[int, str]) -> dict:
+    return {'type': 'discrete', 'states': [{'value': str(v), 'label': n}
+                                           for v, n in names.items()]}
+
+
+XY_BANDS = ((0, 'closer > 0.2 mm', '#d62728'), (1, 'closer 0.05-0.2 mm', '#ff7f0e'),
+            (2, 'within 0.05 mm', '#2ca02c'), (3, 'wider 0.05-0.2 mm', '#17becf'),
+            (4, 'wider > 0.2 mm', '#1f77b4'), (5, 'not following', '#7f7f7f'))
+"""The XY path's gap-error bands (ladrc_tools.node.view_channels.BANDS_MM): value, label,
+colour."""
+OPERATOR_CALLS = (('start', '/follow/start', '{"target_gap_mm": 1.0}', 'start at 1.0 mm',
+                   '#2ca02c'),
+                  ('stop', '/follow/stop', '{}', 'stop', '#d62728'),
+                  ('reset', '/follow/reset_fault', '{}', 'reset fault', '#ff7f0e'),
+                  ('lift', '/follow/lift', '{"mode": 1, "value_mm": 5.0, "velocity_mm_s": 0.0}',
+                   'lift 5 mm', '#1f77b4'))
+"""The Service Call panels: id, service, request, button text, colour."""
+
+
+def foxglove_config() -> dict[str, dict]:
+    """Return the Foxglove panels by id (``Type!name``; module docstring)."""
+    from ladrc_contract.codes import FollowState, SubState
+
+    s, truth, cmd = '/follow/status', '/sim/truth', '/axis/velocity_command'
+    config: dict[str, dict] = {
+        'Plot!gap': _plot('gap mm', [(f'{s}.gap_mm', 'reading', COLORS[0]),
+                                     (f'{s}.target_gap_mm', 'target', COLORS[1]),
+                                     (f'{s}.fused_gap_mm', 'fused', COLORS[2]),
+                                     (f'{truth}.true_gap_mm', 'true (sim)', COLORS[3])]),
+        'Plot!command': _plot('command mm/s', [(f'{cmd}.velocity_mm_s', 'sent', COLORS[0]),
+                                               (f'{s}.u_unlimited_mm_s', 'unlimited',
+                                                COLORS[1])]),
+        'StateTransitions!state': {
+            TITLE: 'state, sub-state, fault and hold reasons', 'isSynced': True,
+            'showPoints': False, 'paths': [
+                {'value': f'{s}.state', 'label': 'state', 'timestampMethod': 'receiveTime',
+                 'customStates': _states({int(v): v.name for v in FollowState})},
+                {'value': f'{s}.substate', 'label': 'sub-state',
+                 'timestampMethod': 'receiveTime',
+                 'customStates': _states({int(v): v.name for v in SubState})},
+                {'value': f'{s}.followed', 'label': 'followed', 'timestampMethod': 'receiveTime'},
+                {'value': f'{s}.fault_reason', 'label': 'fault',
+                 'timestampMethod': 'receiveTime'},
+                {'value': f'{s}.hold_reason', 'label': 'hold', 'timestampMethod': 'receiveTime'},
+            ]},
+        'Log!faults': {TITLE: 'fault log (live)', 'topicToRender': '/view/log',
+                       'minLogLevel': 2, 'showLevel': True, 'showTime': True, 'showName': True},
+        'RawMessages!events': {TITLE: 'follow events', 'topicPath': '/follow/events',
+                               'expansion': 'none'},
+        'Plot!xy': {
+            TITLE: 'XY path, coloured by the gap error', 'xAxisVal': 'custom',
+            'xAxisPath': {'value': f'{truth}.x_mm', 'enabled': True}, 'timeRange': 'all',
+            'axisScalesMode': 'lockedScales', 'showLegend': True, 'legendDisplay': 'floating',
+            'xAxisLabel': 'X mm', 'yAxisLabel': 'Y mm',
+            'paths': [{'value': f'{truth}.y_mm', 'xValuePath': f'{truth}.x_mm',
+                       'label': 'path', 'enabled': True, 'color': '#c7c7c7',
+                       'timestampMethod': 'receiveTime'}]
+            + [{'value': f'/view/xy_gap_error{{band=={b}}}.y_mm',
+                'xValuePath': f'/view/xy_gap_error{{band=={b}}}.x_mm', 'label': label,
+                'enabled': True, 'color': color, 'showLine': False,
+                'timestampMethod': 'receiveTime'} for b, label, color in XY_BANDS]},
+    }
+    for name, service, request, text, color in OPERATOR_CALLS:
+        config[f'ServiceCall!{name}'] = {TITLE: text, 'serviceName': service,
+                                         'requestPayload': request, 'buttonText': text,
+                                         'buttonColor': color, 'editingMode': False,
+                                         'timeoutSeconds': 10}
+    return config
+
+
+def foxglove_json() -> str:
+    """Return the Foxglove layout (module docstring): time series left, XY, log, calls right."""
+    config = foxglove_config()
+
+    def split(ids: list[str], direction: str) -> object:
+        node: object = ids[-1]
+        for pid in reversed(ids[:-1]):
+            node = {'first': pid, 'second': node, 'direction': direction,
+                    'splitPercentage': 100.0 / (1 + _count(node))}
+        return node
+
+    left = split(['Plot!gap', 'Plot!command', 'StateTransitions!state'], 'column')
+    calls = split([f'ServiceCall!{c[0]}' for c in OPERATOR_CALLS], 'row')
+    right = {'first': 'Plot!xy', 'second': {
+        'first': 'Log!faults', 'second': {'first': 'RawMessages!events', 'second': calls,
+                                          'direction': 'column', 'splitPercentage': 60.0},
+        'direction': 'column', 'splitPercentage': 50.0}, 'direction': 'column',
+        'splitPercentage': 45.0}
+    layout = {'first': left, 'second': right, 'direction': 'row', 'splitPercentage': 60.0}
     return json.dumps({'configById': config, 'globalVariables': {}, 'userNodes': {},
                        'playbackConfig': {'speed': 1}, 'layout': layout}, indent=2) + '\n'
-
-
-def _fox_path(signal: str) -> str:
-    topic, _, field = signal.rpartition('/')
-    return f'{topic}.{field}'
 
 
 def _count(layout: object) -> int:

@@ -60,14 +60,20 @@ LIVE_LOOPS = ('deadline', 'sync')
 def node_specs(scenario: str, params_file: str | None = None, bag: str | None = None,
                loop: str = 'deadline', storage: str = 'mcap', lockstep: bool = False,
                paced: bool = True, job: str | None = None,
-               separate_cnc: bool = False) -> list[NodeSpec]:
+               separate_cnc: bool = False, drive: str = '', bus: str = '',
+               node_id: int = 5, period_s: float = 0.0005) -> list[NodeSpec]:
     """Return the nodes of a simulated run: the one configuration bringup and launch share.
 
     ``lockstep``: the sim node and the follow node in lock step (docs/follow-node.md), the
     recorder reliable; ``paced``: lock step no faster than real time (else as fast as the
     two processes go); ``job``: the sim node plays this cutting job instead of ``scenario``;
-    ``separate_cnc``: the job's CNC is the CNC node (docs/job-world.md, "A separate CNC").
+    ``separate_cnc``: the job's CNC is the CNC node (docs/job-world.md, "A separate CNC");
+    ``drive='cia402'``: the drive is the emulated CiA 402 drive on the CAN bus ``bus`` (the sim
+    node's, ``-p drive:=cia402``), mastered by the CiA 402 driver node (docs/real-axis.md), its
+    SYNC period ``period_s`` the controller's and the simulated world's period too.
     """
+    if drive not in ('', 'cia402'):
+        raise ValueError(f"drive {drive!r}: '' (the sim node's own) or 'cia402'")
     specs = []
     if bag:
         rec: dict[str, object] = {'output': bag, 'storage': storage,
@@ -81,8 +87,10 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
     # (SCHED_FIFO, locked memory: ladrc_contract/realtime.py), not from wider timeouts.
     # No CPU pinning: on this 2-core class, pinning the two loops to a CPU each starved the
     # simulator's publishing under load (docs/safety.md).
-    specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow',
-                          parameters={'loop': 'lockstep' if lockstep else loop},
+    follow: dict[str, object] = {'loop': 'lockstep' if lockstep else loop}
+    if drive == 'cia402' and abs(period_s - 0.0005) > 1e-12:
+        follow['h_s'] = period_s  # the controller's period is the SYNC period
+    specs.append(NodeSpec('ladrc_follow', 'follow_node', 'ladrc_follow', parameters=follow,
                           params_file=params_file or default_params_file()))
     sim: dict[str, object] = {'exit_at_end': True, **({'job': job} if job else
                                                       {'scenario': scenario})}
@@ -92,11 +100,58 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
         sim.update({'wait_for_recorder_s': 10.0, 'start_delay_s': 1.0})
     if job and separate_cnc:
         sim['separate_cnc'] = True
+    if drive == 'cia402':
+        eds = emulated_drive_eds()
+        sim.update({'drive': 'cia402', 'can_bus': bus, 'can_node_id': node_id, 'can_eds': eds,
+                    'h_s': period_s})
+        driver: dict[str, object] = {'eds': eds, 'bus_interface': bus_interface(bus),
+                                     'bus_channel': bus, 'node_id': node_id,
+                                     'lockstep': bool(lockstep), 'period_s': period_s}
+        specs.append(NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver',
+                              parameters=driver))
     specs.append(NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters=sim))
     if job and separate_cnc:
         specs.append(NodeSpec('ladrc_sim', 'cnc_node', 'ladrc_cnc',
                               parameters={'job': job, 'lockstep': bool(lockstep)}))
     return specs
+
+
+def emulated_drive_eds() -> str:
+    """The EDS of the emulated CiA 402 drive (ladrc_sim), which its driver reads too."""
+    from ladrc_sim.cia402.can_drive import default_eds
+
+    return str(default_eds())
+
+
+def bus_interface(bus: str) -> str:
+    """python-can interface of a bus: ``ws://…`` is python-can-remote, else socketcan."""
+    return 'remote' if bus.startswith(('ws://', 'wss://')) else 'socketcan'
+
+
+VIEW_PORT = 8765
+"""The live view's default WebSocket port (docs/live-view.md)."""
+
+
+def view_spec(port: int = VIEW_PORT) -> NodeSpec:
+    """Return the live view node (Foxglove WebSocket on 127.0.0.1:``port``; docs/live-view.md).
+
+    Read-only beside any node set, at the normal scheduler; its operator calls go through the
+    follow node's own services and checks.
+    """
+    return NodeSpec('ladrc_tools', 'view_node', 'ladrc_view', parameters={'port': int(port)})
+
+
+def port_in_use(port: int, host: str = '127.0.0.1') -> str | None:
+    """Return why ``host:port`` cannot be listened on (one line), or None when it is free."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the view's server binds
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            return f'{host}:{port}: {exc.strerror or exc}'
+    return None
 
 
 def axis_node_specs(params_file: str | None = None, bag: str | None = None,
@@ -135,6 +190,9 @@ LAUNCH_ARGUMENTS: dict[str, tuple[str, str]] = {
                  '(deterministic, equal to the headless runner; docs/follow-node.md)'),
     'storage': ('mcap', "bag storage: 'mcap' or 'sqlite3'"),
     'hardware_id': ('z_axis', 'hardware_id of the follow node on /diagnostics'),
+    'view': ('false', 'also start the live view: Foxglove WebSocket on 127.0.0.1 '
+             '(docs/live-view.md)'),
+    'view_port': ('8765', 'with view:=true: its port on 127.0.0.1'),
 }
 """The launch files' arguments: default and description (one declaration for both files)."""
 
@@ -328,6 +386,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--separate-cnc', action='store_true',
                     help="with --job: the job's CNC as a node of its own (cnc_node), the sim "
                     'taking XY, beam and cuts from cnc/motion (docs/job-world.md)')
+    ap.add_argument('--drive', default='', choices=['', 'cia402'],
+                    help="the drive: the sim node's own (default) or 'cia402': the emulated "
+                    'CiA 402 drive on a CAN bus with the CiA 402 driver node (docs/real-axis.md)')
+    ap.add_argument('--bus', default=None,
+                    help='with --drive cia402: a running bus (ws://127.0.0.1:PORT/ of a '
+                    'python-can-remote server, or a socketcan channel such as can0); default: '
+                    'a bus started here on 127.0.0.1 and stopped at the end')
+    ap.add_argument('--period-ms', type=float, default=None,
+                    help='with --drive cia402: the SYNC period = the controller\'s h_s [0.5 in '
+                    'lock step; 1 free-running: the test bus does not hold 0.5 ms free-running '
+                    'on 2 cores (docs/real-axis.md)]')
     ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')
     ap.add_argument('--bag', default=None, help='record a bag to this folder (must not exist)')
     ap.add_argument('--storage', default='mcap', choices=['mcap', 'sqlite3'])
@@ -341,14 +410,51 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--timeout', type=float, default=600.0,
                     help='stop after this many seconds even if the scenario has not ended')
     ap.add_argument('--logs', default=None, help="folder for the nodes' output [terminal]")
+    ap.add_argument('--view', action='store_true',
+                    help='also start the live view: Foxglove WebSocket on 127.0.0.1 '
+                    '(docs/live-view.md)')
+    ap.add_argument('--view-port', type=int, default=VIEW_PORT,
+                    help=f'with --view: its port on 127.0.0.1 [{VIEW_PORT}]')
+    # LinuxCNC as the job's CNC (issue 42): bringup/linuxcnc_run.py, docs/linuxcnc.md
+    ap.add_argument('--cnc', default='sim', choices=['sim', 'linuxcnc'],
+                    help="with --job: the job's CNC: the simulated one (default) or 'linuxcnc' "
+                    '(LinuxCNC runs the G-code, the bridge speaks the CNC interface; '
+                    'docs/linuxcnc.md)')
+    ap.add_argument('--allowance', default='default',
+                    help="with --cnc linuxcnc: the simulation's timing allowance (a YAML file; "
+                    "'none': the product's values) [config/linuxcnc_allowance.yaml]")
+    ap.add_argument('--blend-mm', type=float, default=None,
+                    help="with --cnc linuxcnc: the post-processor's G64 P [0.05]; 0: G61")
+    ap.add_argument('--fault', default=None,
+                    help='with --cnc linuxcnc: inject KIND@SECONDS after cycle start '
+                    '(kill-linuxcnc, kill-bridge, estop; the fault matrix)')
     args = ap.parse_args(argv)
+    if args.cnc == 'linuxcnc':
+        from .linuxcnc_run import main_linuxcnc
+
+        return main_linuxcnc(args)
 
     if args.separate_cnc and not args.job:
         print('bringup: --separate-cnc needs --job (a scenario has no CNC)', file=sys.stderr)
         return 2
+    if (args.bus or args.period_ms is not None) and args.drive != 'cia402':
+        print('bringup: --bus and --period-ms need --drive cia402', file=sys.stderr)
+        return 2
+    period_ms = args.period_ms if args.period_ms is not None else (
+        0.5 if args.lockstep or args.job else 1.0)
+    if not 0.25 <= period_ms <= 10.0 or (args.job and period_ms != 0.5):
+        print(f'bringup: --period-ms {period_ms:g}: must be in [0.25, 10] (a job: 0.5, the job '
+              "world's period)", file=sys.stderr)
+        return 2
     if args.bag and Path(args.bag).exists():
         print(f'bringup: {args.bag} exists; choose a new bag folder', file=sys.stderr)
         return 2
+    if args.view:  # the view's port: one line now rather than a node that exits at once
+        busy = (f'port {args.view_port} out of range' if not 0 < args.view_port < 65536
+                else port_in_use(args.view_port))
+        if busy:
+            print(f'bringup: --view-port: cannot listen on {busy}', file=sys.stderr)
+            return 2
     scratch = Path(tempfile.mkdtemp(prefix='bringup-')) if args.job else None
     try:
         params = (job_params_file(args.job, args.params, scratch) if scratch is not None
@@ -357,13 +463,29 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(scratch, ignore_errors=True)
         print(f'bringup: {exc}', file=sys.stderr)
         return 2
+    bus_server = None
+    if args.drive == 'cia402' and not args.bus:
+        from ladrc_sim.cia402.bus import start_bus_server
+
+        log_dir = Path(args.logs) if args.logs else None
+        if log_dir is not None:
+            log_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            bus_server = start_bus_server(log_dir / 'can_bus.log' if log_dir else None)
+        except (OSError, RuntimeError) as exc:
+            print(f'bringup: cannot start the CAN bus server: {exc}', file=sys.stderr)
+            return 2
+    bus = args.bus or (bus_server.url if bus_server is not None else '')
     specs = node_specs(args.scenario, params, args.bag, args.loop, args.storage,
                        lockstep=args.lockstep, paced=not args.unpaced, job=args.job,
-                       separate_cnc=args.separate_cnc)
+                       separate_cnc=args.separate_cnc, drive=args.drive, bus=bus,
+                       period_s=period_ms * 1e-3)
     figures_file = scratch / 'figures.json' if scratch is not None else None
     if figures_file is not None:  # the sim node writes the job's figures there
         next(s for s in specs if s.name == 'ladrc_sim').parameters['figures_file'] = str(
             figures_file)
+    if args.view:  # first, so that it shows the run from its start
+        specs.insert(0, view_spec(args.view_port))
     env = isolated_env(args.domain_id)
     up = Bringup(specs, env, Path(args.logs) if args.logs else None)
     interrupted = [False]
@@ -374,7 +496,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     print(f'bringup: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} '
-          + (f'job={args.job}' if args.job else f'scenario={args.scenario}'), file=sys.stderr)
+          + (f'job={args.job}' if args.job else f'scenario={args.scenario}')
+          + (f' drive=cia402 bus={bus}' if args.drive else ''), file=sys.stderr)
     try:
         up.start()
         deadline = time.monotonic() + args.timeout
@@ -389,7 +512,9 @@ def main(argv: list[str] | None = None) -> int:
                                   if p.poll() is not None), file=sys.stderr)
                 break
     finally:
-        codes = up.stop()
+        codes = up.stop(['ladrc_follow', 'ladrc_driver', 'ladrc_sim', 'ladrc_recorder'])
+        if bus_server is not None:
+            bus_server.stop()
         figures = job_figures(figures_file)
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)

@@ -137,6 +137,8 @@ class _StatusPass:
         self.pending: dict[str, np.ndarray] = {}
         self.acc: dict[str, Any] = {}  # 'plain' / 'idle' -> MetricsAccumulator
         self.env: dict[str, Envelope] = {}
+        self.zoom_on = False  # also gather the HTML report's data (zoom_data.ZoomRecorder)
+        self.zoom: dict[str, Any] = {}
         self.first: dict[str, float] = {}
         self.overruns = 0
         self.holds = {code: [0, 0] for code in HOLDS}  # SUB_* -> [episodes, ticks]
@@ -156,6 +158,10 @@ class _StatusPass:
         for name in ('plain', 'idle'):
             self.acc[name] = M.MetricsAccumulator(h_s, v_max_mm_s=self.v_max or math.inf)
             self.env[name] = Envelope(self.n_status)
+            if self.zoom_on:
+                from .zoom_data import ZoomRecorder
+
+                self.zoom[name] = ZoomRecorder(self.n_status)
 
     def _true_gap(self, st: dict[str, np.ndarray], t: np.ndarray,
                   series: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -183,6 +189,7 @@ class _StatusPass:
         if not self.state_seen and np.any(state != 0):
             self.state_seen = True  # a controller that reports its state: no target while IDLE
             del self.acc['plain'], self.env['plain']
+            self.zoom.pop('plain', None)
         series = {'t_s': t, 'gap_mm': st['gap_mm'], 'state': state,
                   'followed': st['followed'], 'velocity_mm_s': st['velocity_mm_s'],
                   'u_unlimited_mm_s': st['u_unlimited_mm_s']}
@@ -199,9 +206,12 @@ class _StatusPass:
                 target = np.where(state != 0, target, np.nan)
                 active = np.isin(state, (3, 4))
             self.acc[name].add(t, gap, target, collision, st['velocity_mm_s'], limits)
-            self.env[name].add({**series, 'target_mm': target, **{
+            plotted = {**series, 'target_mm': target, **{
                 col: np.where(active, st[col].astype(float), np.nan)
-                for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3')}})
+                for col in ('td_x1_mm', 'eso_z1_mm', 'eso_z2', 'eso_z3')}}
+            self.env[name].add(plotted)
+            if name in self.zoom:
+                self.zoom[name].add(plotted)
         for k in TIMING:
             self.timing[k].add(st[k])
         self.overruns += int(np.count_nonzero(st['overrun']))
@@ -280,14 +290,22 @@ def _recording(bag: Bag) -> dict[str, Any] | None:
 
 def analyse(bag: Bag, progress: bool = False, extra: Any = None
             ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Return ``(report dict, plot series)`` of an open bag (needs ``follow/status``).
+    """Return ``(report dict, plot series)`` of an open bag (:func:`analyse_zoom`)."""
+    report, series, _ = analyse_zoom(bag, progress, extra, zoom=False)
+    return report, series
+
+
+def analyse_zoom(bag: Bag, progress: bool = False, extra: Any = None, zoom: bool = True
+                 ) -> tuple[dict[str, Any], dict[str, np.ndarray], Any]:
+    """Return ``(report dict, plot series, zoom data)`` of an open bag (needs ``follow/status``).
 
     ``extra``: another accumulator riding the same pass (the fleet's sensor check): its
     ``fields`` (topic -> field names) are read too and each slice goes to its ``add(part)``.
 
     ONE pass over the bag in time slices (:meth:`Bag.stream`); memory is that of a slice plus
     the accumulators (metrics, timing quantiles, plot envelope), whatever the bag's length.
-    The plot series come back decimated (:mod:`.envelope`).
+    The plot series come back decimated (:mod:`.envelope`). ``zoom``: the same pass also
+    gathers the HTML report's data (:class:`.zoom_data.ZoomData`, else None), third.
     """
     bag.require('follow/status')
     n_status = bag.count('follow/status')
@@ -305,6 +323,7 @@ def analyse(bag: Bag, progress: bool = False, extra: Any = None
     wanted['sim/truth'] = ['stamp_s', 'true_gap_mm', 'collision', 'seq']
     truth = _TruthJoin() if bag.count('sim/truth') > 1 else None
     run = _StatusPass(bag, v_max, truth)
+    run.zoom_on = zoom
     if extra is not None:
         run.extra = extra
         for topic, fields in extra.fields.items():
@@ -337,7 +356,7 @@ def analyse(bag: Bag, progress: bool = False, extra: Any = None
     recording = _recording(bag)
     if recording is not None:
         report['recording'] = recording
-    return report, series
+    return report, series, (run.zoom[name].finish() if name in run.zoom else None)
 
 
 def _save(fig: Any, out: Path, name: str) -> str:
@@ -454,20 +473,26 @@ def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
 
 
 def write_report(bag_path: str | Path, out_dir: str | Path | None = None,
-                 progress: bool = False) -> Path:
+                 progress: bool = False, html: bool = True) -> Path:
     """Write ``report.md``, ``report.json`` and PNGs for a bag; return the output folder.
 
     Default output: ``<bag>_report`` beside the bag. Refuses an existing output folder.
+    ``html``: also ``report.html``, the plots zoomable (:mod:`.html_report`), from the same
+    pass.
     """
     bag_path = Path(bag_path)
     out = Path(out_dir) if out_dir else bag_path.with_name(bag_path.name + '_report')
     if out.exists():
         raise BagError(f'{out} exists already: choose another output folder (-o)')
     with open_bag(bag_path) as bag:
-        report, series = analyse(bag, progress)
+        report, series, zoom = analyse_zoom(bag, progress, zoom=html)
         job = _job(bag)
     with building(out) as tmp:
         pngs = _plots(series, report, tmp)
+        if zoom is not None:
+            from .html_report import write_html
+
+            write_html(zoom, report, STATE_NAMES, tmp / 'report.html')
         if job is not None:  # a cutting job's bag: the job drawn, its figures
             from .job_report import draw_job
 

@@ -1,0 +1,96 @@
+"""A drive on a CAN bus as one command: the test bus, the emulated CiA 402 drive, its driver.
+
+    cia402_stack [--scenario NAME|YAML] [--bus URL] [--watchdog-timeout-s S] [--lockstep]
+
+For the tools that check a driver (``ladrc conform --drive cia402``, ``ladrc calibrate`` and
+``ladrc identify`` through it): it starts python-can-remote on 127.0.0.1 (unless ``--bus``
+names a running bus), the sim node with its drive on that bus (``drive:=cia402``, the scenario's
+world, no follow commands of its own for the kit's flat-sheet scenario) and the CiA 402 driver
+node, on the ROS domain of its environment; on SIGINT or SIGTERM it stops them in the safe order
+(the driver first, which quick-stops the drive, then the drive, then the bus), each by its PID,
+and exits 0. A process that exits early ends the stack with code 1 and names it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+import signal
+import sys
+import time
+
+from .bringup import Bringup, NodeSpec, bus_interface, emulated_drive_eds
+
+
+def stack_specs(scenario: str, bus: str, watchdog_timeout_s: float, lockstep: bool = False,
+                node_id: int = 5, exit_at_end: bool = True, period_s: float = 0.0005
+                ) -> list[NodeSpec]:
+    """Return the emulated drive (the sim node on the bus) and the CiA 402 driver node."""
+    eds = emulated_drive_eds()
+    sim = NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters={
+        'scenario': scenario, 'exit_at_end': exit_at_end, 'drive': 'cia402', 'can_bus': bus,
+        'can_node_id': node_id, 'can_eds': eds, 'lockstep': lockstep, 'h_s': period_s})
+    driver = NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver', parameters={
+        'eds': eds, 'bus_interface': bus_interface(bus), 'bus_channel': bus,
+        'node_id': node_id, 'watchdog_timeout_s': watchdog_timeout_s, 'lockstep': lockstep,
+        'period_s': period_s})
+    return [sim, driver]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``cia402_stack``."""
+    ap = argparse.ArgumentParser(prog='cia402_stack', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--scenario', default='step', help="the drive's world [step]")
+    ap.add_argument('--bus', default=None, help='a running bus (default: start one here)')
+    ap.add_argument('--watchdog-timeout-s', type=float, default=0.005,
+                    help="the driver's command watchdog [0.005]")
+    ap.add_argument('--lockstep', action='store_true', help='one period per SYNC')
+    ap.add_argument('--period-s', type=float, default=0.0005,
+                    help="the SYNC period = the drive world's h_s [0.0005]")
+    ap.add_argument('--logs', default=None, help="folder for the processes' output")
+    a = ap.parse_args(argv)
+    stop = [False]
+
+    def _stop(_signum, _frame):
+        stop[0] = True
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    logs = Path(a.logs) if a.logs else None
+    server = None
+    if not a.bus:
+        from ladrc_sim.cia402.bus import start_bus_server
+
+        if logs is not None:
+            logs.mkdir(parents=True, exist_ok=True)
+        try:
+            server = start_bus_server(logs / 'can_bus.log' if logs else None)
+        except (OSError, RuntimeError) as exc:
+            print(f'cia402_stack: cannot start the CAN bus server: {exc}', file=sys.stderr)
+            return 2
+    bus = a.bus or server.url
+    up = Bringup(stack_specs(a.scenario, bus, a.watchdog_timeout_s, a.lockstep,
+                             period_s=a.period_s),
+                 dict(os.environ), logs)
+    print(f'cia402_stack: bus {bus}', file=sys.stderr, flush=True)
+    code = 0
+    try:
+        up.start()
+        while not stop[0]:
+            gone = {n: p.returncode for n, p in up.procs.items() if p.poll() is not None}
+            if gone:
+                print('cia402_stack: exited early: '
+                      + ', '.join(f'{n}={c}' for n, c in gone.items()), file=sys.stderr)
+                code = 1
+                break
+            time.sleep(0.1)
+    finally:
+        up.stop(['ladrc_driver', 'ladrc_sim'])
+        if server is not None:
+            server.stop()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
