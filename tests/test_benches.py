@@ -156,6 +156,15 @@ def test_bag_scale_tools() -> None:
     check(tools['export'], {'csv_bytes': INT}, 'tools/export: ')
 
 
+def test_cia402_units() -> None:
+    r = run_bench('cia402_units', '--scenarios', 'step', timeout_s=300)
+    check(r, {'scenarios': DICT, 'max_relative_all': NUM})
+    for variant in ('baseline', 'gap_counts', 'position_increments', 'velocity_units',
+                    'power_up', 'all'):
+        check(r['scenarios']['step'][variant], {'error_rms_mm': NUM, 'relative': NUM},
+              f'step/{variant}: ')
+
+
 def test_core_step() -> None:
     r = run_bench('core_step', '--quick', timeout_s=300)
     check(r, {'scalar_step_us': NUM, 'batch_realtime_x': DICT, 'load_1min': NUM})

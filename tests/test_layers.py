@@ -225,3 +225,11 @@ def test_the_cia402_package_is_machine_side():
     pure = [p for p in _py_files('ladrc_cia402') if p.name in CIA402_PURE]
     assert len(pure) == len(CIA402_PURE)
     assert not [_rel(p) for p in pure if 'rclpy' in _imports(p)]
+
+
+def test_machine_side_packages_do_not_import_the_live_view():
+    """The live view (foxglove-sdk, ladrc_tools' view node) is a tool beside the machine."""
+    offenders = {_rel(p): sorted(_imports(p) & {'foxglove', 'websockets'})
+                 for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_cia402')
+                 for p in _py_files(pkg)}
+    assert not {k: v for k, v in offenders.items() if v}

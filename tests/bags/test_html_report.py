@@ -12,6 +12,7 @@ across one plot zooms them all.
 
 from __future__ import annotations
 
+import base64
 from contextlib import contextmanager
 import json
 from pathlib import Path
@@ -20,7 +21,7 @@ import sys
 
 from ladrc_tools.bags.bag import open_bag
 from ladrc_tools.cli import main as ladrc
-from ladrc_tools.offline import zoom_data
+from ladrc_tools.offline import html_report, zoom_data
 from ladrc_tools.offline.codec import (
     BLOCK,
     QuantEncoder,
@@ -178,6 +179,14 @@ def test_step_stream_keeps_every_change():
     np.testing.assert_array_equal(steps.expand(n), state)
     assert steps.index[0] == 0 and np.all(np.diff(steps.index) > 0)
     assert enc.changes == steps.index.size < 1000
+
+
+def test_the_blob_is_base64_of_the_streams_joined_whatever_the_chunk():
+    rng = np.random.default_rng(4)
+    parts = [rng.bytes(int(k)) for k in rng.integers(0, 50, 40)]
+    whole = base64.b64encode(b''.join(parts)).decode('ascii')
+    for chunk in (3, 6, 30, 3 << 20):
+        assert ''.join(html_report._base64(parts, chunk)) == whole
 
 
 def test_aux_level_keeps_the_finest_level_that_fits():

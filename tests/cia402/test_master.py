@@ -247,3 +247,30 @@ def test_configure_refuses_a_non_402_device_in_one_line():
 def test_parameters_are_declared_once_with_ranges():
     assert DriverParams().problems() == []
     assert DriverParams(node_id=0).problems() and DriverParams(bus_interface='udp').problems()
+
+
+class _SdoWithOd(_Sdo):
+    """A drive whose EDS has 0x6502 (supported modes) and 0x6007 (abort connection)."""
+
+    od = {0x6502, 0x6007}
+
+
+@pytest.mark.parametrize('modes, mode, name', [(0x104, 9, 'CSV'), (0x004, 3, 'profile velocity')])
+def test_csv_where_the_drive_has_it_else_profile_velocity_and_quick_stop_on_a_lost_master(
+        modes, mode, name):
+    sdo, nmt = _SdoWithOd(), _Nmt()
+    dict.__setitem__(sdo, (0x1000, 0), 0x00020192)
+    dict.__setitem__(sdo, (0x6502, 0), modes)
+    line = configure(sdo, nmt, DriverParams(node_id=NODE))
+    assert f'), {name}, SYNC' in line
+    assert dict.__getitem__(sdo, (0x6060, 0)) == mode
+    assert dict.__getitem__(sdo, (0x6007, 0)) == 3  # abort connection: quick stop
+
+
+def test_a_drive_without_a_velocity_mode_is_refused_in_one_line():
+    sdo, nmt = _SdoWithOd(), _Nmt()
+    dict.__setitem__(sdo, (0x1000, 0), 0x00020192)
+    dict.__setitem__(sdo, (0x6502, 0), 0x1)  # profile position only
+    with pytest.raises(ConfigError, match='neither cyclic synchronous velocity nor profile'):
+        configure(sdo, nmt, DriverParams(node_id=NODE))
+    assert nmt.state == 'PRE-OPERATIONAL'

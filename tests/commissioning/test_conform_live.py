@@ -124,6 +124,23 @@ def test_the_sim_node_passes_every_rule(driver_conformance):  # noqa: F811
     assert max(abs(fb['position_mm'] - start)) <= data['plan']['max_travel_mm']
 
 
+def test_the_cia402_drive_passes_every_rule(driver_conformance):  # noqa: F811
+    """``ladrc conform --drive cia402``: the CiA 402 driver node with the emulated drive.
+
+    At 1 ms (the period the test bus holds free-running on 2 cores, docs/real-axis.md): the
+    kit's rate and what it counts in sample periods are scaled to it (Tolerances.for_period).
+    """
+    r = driver_conformance(None, *WATCHDOG, drive='cia402', domain_id=DOMAIN)
+    assert r.passed, r.summary()
+    assert r.rules_passed == list(RULE_NAMES)
+    assert abs(r['rate'].figure - 1000.0) <= 50.0
+    assert abs(r['motion_speed'].figure - 1.0) <= 0.1
+    assert "'/ladrc_conform_second_commander'" in r['one_commander'].reason
+    assert r.extra['driver_exit_code'] == 0 and _gone(r.extra['driver_pid'])
+    log = (r.output / 'conform.json').read_text()
+    assert 'CiA 402 driver node' in log
+
+
 @pytest.mark.parametrize('defect', list(EXPECTED))
 def test_each_broken_driver_fails_exactly_its_rules(driver_conformance, defect):  # noqa: F811
     r = driver_conformance(broken(defect), '--no-excitation', *WATCHDOG, domain_id=DOMAIN)

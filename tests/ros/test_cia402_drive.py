@@ -9,9 +9,9 @@ when the controller has answered, so the verdict does not depend on load.
 
 Checked: every process exits cleanly; nothing is lost; the samples came over the bus (positions
 in whole encoder increments, the gap in whole analog counts); no contact; the bag replays bit
-for bit; and the error RMS is within 10 % of the same scenario on the simulator's own drive
-(headless, equal to the sim node in lock step bit for bit: tests/ros/test_lockstep.py): the
-difference is the bus's integer units and the drive's power-up (docs/real-axis.md).
+for bit; the error RMS equals the headless loop behind the bus's integer units and the drive's
+power-up (bench/cia402_units.py) and is within 10 % of the simulator's own drive (headless,
+equal to the sim node in lock step bit for bit: tests/ros/test_lockstep.py; docs/cia402.md).
 """
 
 from __future__ import annotations
@@ -92,8 +92,13 @@ def test_the_step_scenario_through_the_cia402_drive_in_lock_step(tmp_path):
     assert replay.returncode == 0 and line['mismatches'] == 0 and line['ticks'] == n, \
         replay.stdout[-2000:]
 
-    headless = tmp_path / 'headless'
-    sim = run([str(BIN / 'ladrc'), 'simulate', 'step', '-o', str(headless)])
-    assert sim.returncode == 0, sim.stdout[-2000:]
-    ref = last_json(run([str(BIN / 'ladrc'), 'report', str(headless), '-q']).stdout)
-    assert abs(live['error_rms_mm'] / ref['error_rms_mm'] - 1) <= 0.10, (live, ref)
+    # the same loop headless: the simulator's own drive, and behind the bus's integer units
+    # and the drive's power-up (bench/cia402_units.py): the live run equals the latter to the
+    # last bit, and differs from the former by what those cost (the power-up, here 3 %)
+    from cia402_units import BusUnits
+    from ladrc_sim.headless.runner import run as run_headless
+
+    own = run_headless('step', BusUnits('baseline')).metrics.error_rms_mm
+    bus = run_headless('step', BusUnits('all')).metrics.error_rms_mm
+    assert live['error_rms_mm'] == pytest.approx(bus, rel=1e-12, abs=0.0), (live, bus)
+    assert abs(live['error_rms_mm'] / own - 1) <= 0.10, (live, own)

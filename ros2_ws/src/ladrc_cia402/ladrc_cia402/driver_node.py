@@ -105,7 +105,9 @@ class DriverNode(LoopNode):
         self.cycles_back = 0
         self.watchdog_reason = ''
         self.watchdog_trips = 0
-        self.seq = 0
+        self.seq = 0  # axis/feedback samples published (each topic counts its own)
+        self.gap_seq = 0  # axis/capacitive_height samples published
+        self.fb_stamp_ns = -1  # the newest feedback stamp published (stamps only increase)
         self.late_cycles = 0
         self.running = True
         self.master: Master | None = None
@@ -185,22 +187,30 @@ class DriverNode(LoopNode):
     # ---- samples out ----------------------------------------------------------------------
     def publish(self, s: Sample, stamp_ns: int) -> None:
         """Publish one cycle's sample pair (``seq`` +1 each)."""
+        if stamp_ns <= self.fb_stamp_ns:  # a late sample of a cycle already reported
+            return
+        self.fb_stamp_ns = stamp_ns
         sec, nsec = divmod(stamp_ns, 1_000_000_000)
         with self.mutex:
             reasons = [r for r in (self.lock.fault_reason, self.watchdog_reason) if r]
         reasons += [s.fault_reason] if s.fault_reason else []
         fault = bool(reasons)
+        # the raw value of an analog amplifier is its count (docs/cia402.md, "Units")
         self.pub_gap.publish(self.out_gap.pack(
-            sec, nsec, seq=self.seq, gap_mm=s.gap_mm, raw_hz=math.nan,
-            valid=bool(s.gap_valid), status=int(s.gap_status)))
+            sec, nsec, seq=self.gap_seq, gap_mm=math.nan if self.p.raw_only else s.gap_mm,
+            raw_hz=float(s.analog_counts), valid=bool(s.gap_valid), status=int(s.gap_status)))
         self.pub_fb.publish(self.out_fb.pack(
             sec, nsec, seq=self.seq, position_mm=s.position_mm, velocity_mm_s=s.velocity_mm_s,
             drive_enabled=bool(s.enabled) and not fault, drive_fault=fault,
             fault_reason='; '.join(reasons)))
         self.seq += 1
+        self.gap_seq += 1
 
     def publish_fault(self, s: Sample, stamp_ns: int) -> None:
         """Publish a feedback sample that carries only a fault: the last position, drive_fault."""
+        if stamp_ns <= self.fb_stamp_ns:
+            return
+        self.fb_stamp_ns = stamp_ns
         sec, nsec = divmod(stamp_ns, 1_000_000_000)
         with self.mutex:
             reasons = [r for r in (self.lock.fault_reason, self.watchdog_reason) if r]

@@ -47,6 +47,9 @@ from .units import AnalogScale, DriveUnits
 DEVICE_TYPE = 0x1000
 COMM_CYCLE = 0x1006
 DEVICE_PROFILE_402 = 402
+ABORT_CONNECTION, ABORT_QUICK_STOP = 0x6007, 3  # the drive's reaction to a lost master
+SUPPORTED_MODES = 0x6502
+SUPPORTS_PV, SUPPORTS_CSV = 1 << 2, 1 << 8  # 0x6502 bits: profile velocity, CSV
 BUS_INTERFACES = ('remote', 'socketcan')
 
 
@@ -82,9 +85,14 @@ class DriverParams(Section):
     rpdo_deadline_ms: int = param(10, 'ms', "the drive's RPDO deadline (0x1400 sub 5): no "
                                   'RPDO for this long -> the drive faults and brakes', ge=1,
                                   le=65535, runtime=False)
-    missing_tpdo_cycles: int = param(3, '1', 'free-running: this many cycles in a row '
-                                     'without both TPDOs of their SYNC is a drive fault', ge=1,
-                                     le=1000, runtime=False)
+    missing_tpdo_cycles: int = param(6, '1', 'free-running: this many cycles in a row '
+                                     'without both TPDOs of their SYNC is a drive fault (6: '
+                                     '3 ms at 0.5 ms, 6 ms at 1 ms, within the controller\'s '
+                                     '10 ms stale-input limit)', ge=1, le=1000, runtime=False)
+    raw_only: bool = param(False, '', 'publish the analog count as the raw value (raw_hz) and '
+                           'no gap (gap_mm NaN): the controller converts it with its '
+                           'calibration table (docs/calibration.md); the count is in raw_hz '
+                           'either way', runtime=False)
     power_at_start: bool = param(True, '', 'power the drive (Operation enabled, zero target) '
                                  'once it is configured, as a machine powers its axes at '
                                  'machine-on; false: only while a commander commands',
@@ -151,6 +159,7 @@ class Sample:
     gap_mm: float
     gap_valid: bool
     gap_status: int
+    analog_counts: int
     state: State | None
     controlword: int
     target: int
@@ -184,11 +193,17 @@ def configure(sdo: Any, nmt: Any, p: DriverParams, sleep: Callable[[float], None
                 sdo[index][sub].raw = value
         if int(sdo[0x1400][5].raw) != p.rpdo_deadline_ms:
             raise ConfigError(f'node {p.node_id}: RPDO deadline not taken')
-        sdo[ds402.MODES_OF_OPERATION].raw = ds402.MODE_CYCLIC_SYNC_VELOCITY
+        mode = _velocity_mode(sdo, p.node_id)
+        sdo[ds402.MODES_OF_OPERATION].raw = mode
         shown = int(sdo[ds402.MODES_OF_OPERATION_DISPLAY].raw)
-        if shown != ds402.MODE_CYCLIC_SYNC_VELOCITY:
-            raise ConfigError(f'node {p.node_id}: 0x6061 shows mode {shown} after 0x6060 = 9 '
-                              '(cyclic synchronous velocity)')
+        if shown != mode:
+            raise ConfigError(f'node {p.node_id}: 0x6061 shows mode {shown} after 0x6060 = '
+                              f'{mode} ({ds402.MODE_NAMES[mode]})')
+        if _has(sdo, ABORT_CONNECTION):
+            # what the drive does when its master is lost: quick stop (CiA 402 0x6007 = 3)
+            sdo[ABORT_CONNECTION].raw = ABORT_QUICK_STOP
+            if int(sdo[ABORT_CONNECTION].raw) != ABORT_QUICK_STOP:
+                raise ConfigError(f'node {p.node_id}: 0x6007 (abort connection) not quick stop')
         cycle_us = int(round(p.period_s * 1e6))
         sdo[COMM_CYCLE].raw = cycle_us
         if int(sdo[COMM_CYCLE].raw) != cycle_us:
@@ -198,8 +213,34 @@ def configure(sdo: Any, nmt: Any, p: DriverParams, sleep: Callable[[float], None
     except Exception as exc:  # noqa: BLE001 -- an SDO abort: one line
         raise ConfigError(f'node {p.node_id}: configuration refused: {exc}') from None
     nmt.state = 'OPERATIONAL'
-    return (f'node {p.node_id}: CiA 402 (0x{device_type:08X}), CSV, SYNC {cycle_us} us, '
+    name = 'CSV' if mode == ds402.MODE_CYCLIC_SYNC_VELOCITY else 'profile velocity'
+    return (f'node {p.node_id}: CiA 402 (0x{device_type:08X}), {name}, SYNC {cycle_us} us, '
             f'RPDO deadline {p.rpdo_deadline_ms} ms, operational')
+
+
+def _has(sdo: Any, index: int) -> bool:
+    """Whether the drive's object dictionary (its EDS) has ``index``."""
+    try:
+        return index in sdo.od
+    except (AttributeError, TypeError):
+        return False
+
+
+def _velocity_mode(sdo: Any, node_id: int) -> int:
+    """Cyclic synchronous velocity where the drive has it, else profile velocity (0x6502).
+
+    Without 0x6502 in the EDS the drive is taken to have CSV (0x6060 = 9 is then checked by
+    0x6061). Neither mode: one line.
+    """
+    if not _has(sdo, SUPPORTED_MODES):
+        return ds402.MODE_CYCLIC_SYNC_VELOCITY
+    bits = int(sdo[SUPPORTED_MODES].raw)
+    if bits & SUPPORTS_CSV:
+        return ds402.MODE_CYCLIC_SYNC_VELOCITY
+    if bits & SUPPORTS_PV:
+        return ds402.MODE_PROFILE_VELOCITY
+    raise ConfigError(f'node {node_id}: 0x6502 = 0x{bits:08X}: neither cyclic synchronous '
+                      'velocity nor profile velocity')
 
 
 class Master:
@@ -417,5 +458,6 @@ class Master:
                       velocity_mm_s=self.units.velocity_mm_s(self.velocity),
                       enabled=state is State.OPERATION_ENABLED and not reasons,
                       fault=bool(reasons), fault_reason='; '.join(reasons), gap_mm=gap,
-                      gap_valid=valid, gap_status=self.analog.status(self.counts), state=state,
+                      gap_valid=valid, gap_status=self.analog.status(self.counts),
+                      analog_counts=int(self.counts), state=state,
                       controlword=cw, target=target)

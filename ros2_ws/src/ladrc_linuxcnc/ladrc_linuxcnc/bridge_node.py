@@ -161,16 +161,16 @@ class BridgeNode(LoopNode):
         return self.answers is not None and int(self.answers.get('gap_seq', 0)) > 0
 
     def take_status(self) -> None:
-        """Take the statuses that arrived; keep the newest."""
-        reader = self.status_reader
-        while (taken := reader.take()) is not None:
+        """Take the statuses that arrived; keep the newest (only it is decoded)."""
+        for data, _ in reversed(self.status_reader.take_all()):
             try:
-                values = self._status.unpack(taken[0])
+                values = self._status.unpack(data)
             except ValueError:
                 continue  # not the contract's message: nobody's answer
             self.answers = dict(zip(ANSWERS, (values[i] for i in self._answer_idx),
                                     strict=True))
             self.answer_ns = time.monotonic_ns()
+            return
 
     def send_command(self, name: str, args: dict[str, Any]) -> None:
         """Call a follow service (not awaited: a refusal, when its answer comes, aborts)."""

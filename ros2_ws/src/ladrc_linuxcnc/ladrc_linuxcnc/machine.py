@@ -48,6 +48,8 @@ SYSTEM_PYTHON = os.environ.get('LADRC_LINUXCNC_PYTHON', '/usr/bin/python3')
 HAL_KEYS = ('0x48414c32', '0x90280A48', '0x48484c34')
 """HAL, RTAPI and UUID shared memory keys (LinuxCNC 2.9's ``realtime stop`` removes them)."""
 NOBODY_UID = 65534
+RUN_MARK = 'LADRC_LINUXCNC_RUN'
+"""The environment variable that marks every process of a run (its INI's path)."""
 
 
 class LinuxCncError(RuntimeError):
@@ -129,7 +131,8 @@ class RunSettings:
     accel_mm_s2: float = 2000.0
     exit_at_end: bool = False
     ready_timeout_s: float = 120.0
-    component_priority: int = 0
+    component_priority: int = 0   # SCHED_FIFO of the bridge's HAL component (0: normal)
+    servo_priority: int = 0       # SCHED_FIFO of LinuxCNC's servo thread (0: as LinuxCNC runs it)
     watchdog_s: float = 0.5
     extra: dict[tuple[str, str], Any] = field(default_factory=dict)
 
@@ -166,6 +169,7 @@ def render_run_config(run_dir: Path, s: RunSettings) -> Path:
         ('LADRC', 'SOCKET'): socket_dir / 'bridge.sock',
         ('LADRC', 'PRIORITY'): int(s.component_priority),
         ('LADRC', 'WATCHDOG_S'): float(s.watchdog_s),
+        ('LADRC', 'SERVO_PRIORITY'): int(s.servo_priority),
         ('LADRC', 'PROGRAM'): Path(s.program).resolve(),
         ('LADRC', 'STATUS_FILE'): run_dir / 'display.jsonl',
         ('LADRC', 'READY_TIMEOUT_S'): float(s.ready_timeout_s),
@@ -217,8 +221,21 @@ def _cmdline(pid: int) -> str:
         return ''
 
 
+def _marked(pid: int, marker: bytes) -> bool:
+    """Return whether a process's environment holds ``marker`` (its run's)."""
+    try:
+        return marker in Path(f'/proc/{pid}/environ').read_bytes().split(b'\0')
+    except OSError:
+        return False
+
+
 def run_processes(session: int, ini: str) -> list[int]:
-    """Return the live processes of a run: its session's, and those naming its INI."""
+    """Return the live processes of a run.
+
+    Its session's, those naming its INI, and those whose environment carries the run's mark
+    (:data:`RUN_MARK`): ``rtapi_app`` and ``linuxcncsvr`` leave the session and name no INI.
+    """
+    marker = f'{RUN_MARK}={ini}'.encode() if ini else b''
     out = []
     for entry in Path('/proc').iterdir():
         if not entry.name.isdigit():
@@ -227,7 +244,7 @@ def run_processes(session: int, ini: str) -> list[int]:
         st = _proc_stat(pid)
         if st is None or pid == os.getpid():
             continue
-        if st[1] == session or (ini and ini in _cmdline(pid)):
+        if st[1] == session or (ini and (ini in _cmdline(pid) or _marked(pid, marker))):
             out.append(pid)
     return sorted(out)
 
@@ -265,9 +282,14 @@ def clean_shared_memory(nml: Path | None) -> list[str]:
     return gone
 
 
-def rtapi_env(run_dir: Path) -> dict[str, str]:
-    """Return the environment LinuxCNC runs in (root: RTAPI_UID and RTAPI_FIFO_PATH)."""
+def rtapi_env(run_dir: Path, ini: Path | None = None) -> dict[str, str]:
+    """Return the environment LinuxCNC runs in (root: RTAPI_UID and RTAPI_FIFO_PATH).
+
+    With ``ini``, the run's mark (:data:`RUN_MARK`), which every process inherits.
+    """
     env = dict(os.environ)
+    if ini is not None:
+        env[RUN_MARK] = str(ini)
     if os.geteuid() == 0:
         fifo_dir = Path(run_dir) / 'rtapi'
         fifo_dir.mkdir(exist_ok=True)
@@ -287,10 +309,11 @@ class LinuxCnc:
                                 or self.run_dir / 'display.jsonl')
         self.socket_path = ini_value(self.ini, 'LADRC', 'SOCKET')
         self.log_path = log_path or self.run_dir / 'linuxcnc.log'
-        self.env = rtapi_env(self.run_dir)
+        self.env = rtapi_env(self.run_dir, self.ini)
         self.proc: subprocess.Popen | None = None
         self._lock_fd: int | None = None
         self.cleaned: list[str] = []
+        self.servo_threads: list[str] = []
 
     # ---- the lock ------------------------------------------------------------------------------
     def _take_lock(self, wait_s: float) -> None:
@@ -384,6 +407,31 @@ class LinuxCnc:
         except LinuxCncError:
             self.stop()
             raise
+        prio = int(ini_value(self.ini, 'LADRC', 'SERVO_PRIORITY') or 0)
+        self.servo_threads = self.set_servo_priority(prio) if prio > 0 else []
+
+    def set_servo_priority(self, priority: int) -> list[str]:
+        """Run LinuxCNC's real-time threads (``rtapi_app:T#n``) at SCHED_FIFO ``priority``.
+
+        Without a PREEMPT_RT kernel LinuxCNC 2.9 runs them at the normal scheduler ("POSIX
+        non-realtime"); beside SCHED_FIFO loops on two cores its servo thread then waits for
+        them. Returns what was set (``name tid``), or why not.
+        """
+        out = []
+        for pid in self.pids():
+            for task in Path(f'/proc/{pid}/task').glob('*'):
+                try:
+                    name = (task / 'comm').read_text().strip()
+                except OSError:
+                    continue
+                if name.startswith('rtapi_app:T#'):
+                    try:
+                        os.sched_setscheduler(int(task.name), os.SCHED_FIFO,
+                                              os.sched_param(priority))
+                        out.append(f'{name} {task.name} SCHED_FIFO {priority}')
+                    except OSError as exc:
+                        out.append(f'{name} {task.name}: {exc.strerror}')
+        return out
 
     def events(self) -> list[dict]:
         """Return the display's events so far (its status file)."""

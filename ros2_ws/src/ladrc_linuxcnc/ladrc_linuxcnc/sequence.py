@@ -109,8 +109,9 @@ class BridgeParams(Section):
     wait_for_linuxcnc_s: float = param(60.0, 's', "at start, wait this long for the HAL "
                                        "component's socket", gt=0.0, le=3600.0, runtime=False)
     exit_at_end: bool = param(True, '', "exit once the job's log is published", runtime=False)
-    thread_priority: int = param(50, '', 'SCHED_FIFO priority of the loop thread (0: normal)',
-                                 ge=0, le=98, runtime=False)
+    thread_priority: int = param(45, '', 'SCHED_FIFO priority of the loop thread (0: normal); '
+                                 'below the follow and sim loops (50): the CNC is 1 kHz and '
+                                 'waits for nothing of theirs', ge=0, le=98, runtime=False)
     lock_memory: bool = param(True, '', 'mlockall the process', runtime=False)
 
 
@@ -344,6 +345,7 @@ class Sequencer:
                     self.phase, self.contour = 'between', 0
                     self.at_speed = self.beam_open = False
             elif self.phase == 'cut' and not spindle:  # M5: the contour's end
+                log.contours[-1]['end_line'] = prev.program_line if prev is not None else 0
                 self.at_speed = self.beam_open = False
                 self.contour = 0
                 self.phase = 'between'
@@ -358,6 +360,8 @@ class Sequencer:
                     self._waited('lift in position', now_s)
                 elif now_s - self.t_wait > self.p.wait_timeout_s:
                     self.abort(f'waited {self.p.wait_timeout_s:g} s for the lift', now_s)
+            if self.phase in ('pierce', 'cut') and log.contours and not log.contours[-1]['line']:
+                log.contours[-1]['line'] = s.program_line  # 0 until the cut's first move
             # a rapid: leapfrog at its start (the controller following)
             traverse = s.motion_type == p.MOTION_TRAVERSE and s.distance_to_go_mm > 0.0
             if (traverse and not self.rapid_started and self.phase == 'between'
@@ -455,6 +459,8 @@ class Sequencer:
         commanded = requested * (s.feed_override if math.isfinite(s.feed_override) else 1.0)
         if segment == SEG_CUT:
             commanded *= adaptive
+        if s.flag(p.F_FEED_HOLD_IN) or s.flag(p.F_PAUSED):  # LinuxCNC's net feed scale is 0
+            commanded = 0.0
         return {'x_mm': s.x_mm, 'y_mm': s.y_mm, 'commanded_feed_mm_s': max(commanded, 0.0),
                 'actual_feed_mm_s': max(s.actual_vel_mm_s, 0.0), 'segment': segment,
                 'beam_on': s.flag(p.F_BEAM_GATE), 'contour': self.contour,

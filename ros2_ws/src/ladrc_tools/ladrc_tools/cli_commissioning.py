@@ -228,6 +228,9 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument('--sim', action='store_true',
                    help='start the sim node on a DDS domain of its own and calibrate it '
                    '(default: the driver on the current domain)')
+    p.add_argument('--drive', choices=['cia402'],
+                   help='with --sim: the simulated axis behind the CiA 402 path (the emulated '
+                   'drive, the driver node, the test bus; the raw value is the analog count)')
     p.add_argument('-o', '--output', default='calibration',
                    help='output folder [calibration]; never overwritten')
     p.add_argument('--descent-mm-s', type=float, default=d.descent_mm_s,
@@ -273,8 +276,12 @@ def _run_calibrate(a: argparse.Namespace) -> int:
     try:
         from .node.calibrate_node import SimOptions, run_calibration
 
+        if a.drive and not a.sim:
+            raise CliError('--drive needs --sim (a drive of your own: start its driver and '
+                           'calibrate without --sim)')
         if a.sim:
-            sim = SimOptions(a.sim_gap_mm, a.sim_noise_mm, a.sim_watchdog_ms * 1e-3)
+            sim = SimOptions(a.sim_gap_mm, a.sim_noise_mm, a.sim_watchdog_ms * 1e-3,
+                             drive=a.drive or '')
         result = run_calibration(str(out), motion, sim, lockstep=a.lockstep)
     except (CalibrationError, FileNotFoundError) as exc:
         raise CliError(' '.join(str(exc).split())) from None

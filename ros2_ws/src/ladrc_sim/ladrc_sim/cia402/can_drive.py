@@ -91,6 +91,7 @@ EMCY_HARDWARE = 0x5000
 EMCY_BUS_LOST = 0x8140  # CAN: bus off (the drive lost its bus)
 SDO_VALUE_RANGE = 0x06090030
 TWO_MASTERS = b'2MSTR'
+FIRST_SYNC_S = 90.0  # lock step: the wait for the first SYNC (a master configuring, starting)
 
 
 class LockstepAbort(Exception):
@@ -392,7 +393,12 @@ class CanDrive:
         return self._tpdos
 
     def _wait_sync(self) -> _Sync:
-        limit = time.monotonic_ns() + self.lockstep_timeout_ns
+        # the first SYNC comes once the driver has configured the drive and found its
+        # controller (its wait_for_controller_s, 60 s): waited for that long at least
+        first = self.seq == 0 and not self._syncs_seen
+        self._syncs_seen = True
+        limit = time.monotonic_ns() + max(self.lockstep_timeout_ns,
+                                          int(FIRST_SYNC_S * 1e9) if first else 0)
         with self._cv:
             while not self._syncs:
                 if not self.running:
@@ -490,6 +496,7 @@ class CanDrive:
 
     _velocity_mm_s = 0.0
     _event_code = EMCY_HARDWARE
+    _syncs_seen = False
 
 
 class _NoPlant:

@@ -24,8 +24,8 @@ from .bringup import Bringup, NodeSpec, bus_interface, emulated_drive_eds
 
 
 def stack_specs(scenario: str, bus: str, watchdog_timeout_s: float, lockstep: bool = False,
-                node_id: int = 5, exit_at_end: bool = True, period_s: float = 0.0005
-                ) -> list[NodeSpec]:
+                node_id: int = 5, exit_at_end: bool = True, period_s: float = 0.0005,
+                raw_only: bool = False) -> list[NodeSpec]:
     """Return the emulated drive (the sim node on the bus) and the CiA 402 driver node."""
     eds = emulated_drive_eds()
     sim = NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters={
@@ -34,7 +34,10 @@ def stack_specs(scenario: str, bus: str, watchdog_timeout_s: float, lockstep: bo
     driver = NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver', parameters={
         'eds': eds, 'bus_interface': bus_interface(bus), 'bus_channel': bus,
         'node_id': node_id, 'watchdog_timeout_s': watchdog_timeout_s, 'lockstep': lockstep,
-        'period_s': period_s})
+        'period_s': period_s, 'raw_only': raw_only,
+        # the drive's own deadline is behind the driver's watchdog (a dead driver, not a
+        # silent controller): at least twice it
+        'rpdo_deadline_ms': max(10, int(round(2e3 * watchdog_timeout_s)))})
     return [sim, driver]
 
 
@@ -46,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--watchdog-timeout-s', type=float, default=0.005,
                     help="the driver's command watchdog [0.005]")
     ap.add_argument('--lockstep', action='store_true', help='one period per SYNC')
+    ap.add_argument('--raw-only', action='store_true',
+                    help='the driver publishes the analog count as raw_hz and no gap_mm')
     ap.add_argument('--period-s', type=float, default=0.0005,
                     help="the SYNC period = the drive world's h_s [0.0005]")
     ap.add_argument('--logs', default=None, help="folder for the processes' output")
@@ -71,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     bus = a.bus or server.url
     up = Bringup(stack_specs(a.scenario, bus, a.watchdog_timeout_s, a.lockstep,
-                             period_s=a.period_s),
+                             period_s=a.period_s, raw_only=a.raw_only),
                  dict(os.environ), logs)
     print(f'cia402_stack: bus {bus}', file=sys.stderr, flush=True)
     code = 0

@@ -42,12 +42,17 @@ EXIT_USAGE = 2
 
 
 def run_kit(output: Path, cmd: str | None = None, *options: str, sim: bool = False,
-            domain_id: int | None = None, timeout_s: float = 300.0) -> ConformanceResult:
-    """Run ``ladrc conform`` into ``output`` (must not exist); return its result."""
-    if (cmd is None) == (not sim):
-        raise ValueError('give a driver command or sim=True (not both)')
+            domain_id: int | None = None, timeout_s: float = 300.0,
+            drive: str | None = None) -> ConformanceResult:
+    """Run ``ladrc conform`` into ``output`` (must not exist); return its result.
+
+    One of ``cmd`` (a driver command), ``sim=True`` or ``drive`` (a drive path of the project:
+    ``'cia402'``).
+    """
+    if sum((cmd is not None, bool(sim), bool(drive))) != 1:
+        raise ValueError('give one of a driver command, sim=True or drive')
     argv = [sys.executable, '-m', 'ladrc_tools.cli', 'conform', '-o', str(output)]
-    argv += ['--sim'] if sim else ['--driver-cmd', cmd]
+    argv += (['--sim'] if sim else ['--drive', drive] if drive else ['--driver-cmd', cmd])
     if domain_id is not None:
         argv += ['--domain-id', str(int(domain_id))]
     argv += [str(o) for o in options]
@@ -81,12 +86,13 @@ def driver_conformance(tmp_path: Path) -> Callable[..., ConformanceResult]:
     runs = [0]
 
     def run(cmd: str | None = None, *options: str, sim: bool = False,
-            domain_id: int | None = None, timeout_s: float = 300.0) -> ConformanceResult:
+            domain_id: int | None = None, timeout_s: float = 300.0,
+            drive: str | None = None) -> ConformanceResult:
         runs[0] += 1
         out = tmp_path / f'conform-{runs[0]}'
         try:
             result = run_kit(out, cmd, *options, sim=sim, domain_id=domain_id,
-                             timeout_s=timeout_s)
+                             timeout_s=timeout_s, drive=drive)
         except (RuntimeError, TimeoutError) as exc:
             pytest.fail(f'driver conformance could not run: {exc}', pytrace=False)
         result.output = out  # type: ignore[attr-defined]

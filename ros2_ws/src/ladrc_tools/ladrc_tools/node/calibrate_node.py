@@ -427,6 +427,7 @@ class SimOptions(NamedTuple):
     noise_mm: float = 0.005
     watchdog_s: float = 0.05
     raw_only: bool = False
+    drive: str = ''  # 'cia402': the emulated CiA 402 drive and its driver node (cia402_stack)
 
 
 def _start_sim(sim: SimOptions, motion: dict[str, float], lockstep: bool
@@ -448,13 +449,20 @@ def _start_sim(sim: SimOptions, motion: dict[str, float], lockstep: bool
     scenario.write_text(yaml.safe_dump(sim_scenario(
         sim.start_gap_mm, SweepMotion(**motion), noise_std_mm=sim.noise_mm)))
     log = open(Path(tmp.name) / 'sim.log', 'wb')  # noqa: SIM115
-    proc = subprocess.Popen(
-        [executable_path('ladrc_sim', 'sim_node'), '--ros-args', '-p',
-         f'scenario:={scenario}', '-p', 'wait_for_controller_s:=0.0', '-p',
-         f'watchdog_timeout_s:={sim.watchdog_s}', '-p',
-         f'raw_only:={str(sim.raw_only).lower()}']
-        + (['-p', 'lockstep:=true', '-p', 'realtime:=false'] if lockstep else []),
-        stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ), start_new_session=True)
+    if sim.drive == 'cia402':
+        # the CiA 402 path (docs/cia402.md): the raw value is the analog input's count
+        cmd = [executable_path('ladrc_tools', 'cia402_stack'), '--scenario', str(scenario),
+               '--watchdog-timeout-s', repr(sim.watchdog_s), '--logs',
+               str(Path(tmp.name) / 'cia402'), '--raw-only']
+        cmd += ['--lockstep'] if lockstep else ['--period-s', '0.001']
+    else:
+        cmd = [executable_path('ladrc_sim', 'sim_node'), '--ros-args', '-p',
+               f'scenario:={scenario}', '-p', 'wait_for_controller_s:=0.0', '-p',
+               f'watchdog_timeout_s:={sim.watchdog_s}', '-p',
+               f'raw_only:={str(sim.raw_only).lower()}']
+        cmd += ['-p', 'lockstep:=true', '-p', 'realtime:=false'] if lockstep else []
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=dict(os.environ),
+                            start_new_session=True)
     log.close()
     return proc, tmp
 
@@ -466,7 +474,18 @@ def _start_sweep(node: CalibrateNode, executor, running: list[bool], output: str
     accepted, message = False, f'no samples from the driver within {wait_s:g} s'
     while running[0] and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
-        if node.gap_t > -math.inf and node.enc_t > -math.inf:
+        if node.lockstep and node.step_ready():
+            # lock step: the sim (and a driver waiting for its controller) moves on only when
+            # each step is answered; zero, enable false, until the sweep starts
+            node.step_k = node.step[0]
+            node.step = None
+            node.publish_command(0.0, False)
+            continue
+        # samples of both inputs, and a drive that is enabled (a CiA 402 drive powers up in
+        # its first cycles, docs/cia402.md): a drive faulted or disabled for the whole wait is
+        # refused by start() with its reason
+        ready = node.drive_enabled or time.monotonic() > deadline - 1.0
+        if node.gap_t > -math.inf and node.enc_t > -math.inf and ready:
             accepted, message = node.start(output)
             if accepted or 'no recent samples' not in message:
                 break

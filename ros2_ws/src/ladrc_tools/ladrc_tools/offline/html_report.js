@@ -282,6 +282,7 @@
     const i0 = lowerBound(T, t0), i1 = upperBound(T, t1) - 1;
     const level = chooseLevel(Math.max(0, i1 - i0 + 1));
     const j0 = Math.max(0, i0 - 1), j1 = Math.min(T.length - 1, i1 + 1);  // reach the edges
+    api.level = level;  // before drawing: the points' show() reads it
     busy = true;
     try {
       for (const p of Object.values(api.plots)) {
@@ -295,10 +296,21 @@
       busy = false;
     }
     api.window = [t0, t1];
-    api.level = level;
-    document.getElementById('window').textContent =
-      't = ' + t0.toFixed(4) + ' .. ' + t1.toFixed(4) + ' s (' + (t1 - t0 >= 1 ? (t1 - t0).toFixed(3) + ' s' : ((t1 - t0) * 1e3).toFixed(2) + ' ms') +
-      '): ' + levelText(level);
+    // the curves kept only as coarser min/max levels (a long run's ESO, TD, ...), named
+    const coarse = new Map();
+    for (const p of Object.values(api.plots)) {
+      p.series.forEach((s, i) => {
+        if (p.levels[i] > level) coarse.set(meta.curves[s.key].label, p.levels[i]);
+      });
+    }
+    const span = t1 - t0;
+    let text = 't = ' + t0.toFixed(4) + ' .. ' + t1.toFixed(4) + ' s (' +
+      (span >= 1 ? span.toFixed(3) + ' s' : (span * 1e3).toFixed(2) + ' ms') + '): ' + levelText(level);
+    if (coarse.size) {
+      text += '; ' + Array.from(coarse.keys()).join(', ') + ': ' +
+        levelText(Math.max(...coarse.values())) + ' (drawn with dots: stored no finer)';
+    }
+    document.getElementById('window').textContent = text;
   }
 
   function afterDraw() {
@@ -351,13 +363,22 @@
 
   function axisValues(u, splits) { return splits.map((v) => String(+v.toPrecision(6))); }
 
+  // time ticks with as many decimals as their spacing needs (no thousands separator)
+  function timeValues(u, splits, axisIdx, space, incr) {
+    const dec = Math.max(0, Math.min(6, Math.ceil(-Math.log10(incr) - 1e-9)));
+    return splits.map((v) => v.toFixed(dec));
+  }
+
   function makePlot(p, el, width) {
     const series = [{label: 't [s]', value: (u, v) => v == null ? '--' : v.toFixed(4)}];
     for (const s of p.series) {
       const c = meta.curves[s.key];
       const opts = {
         label: c.label + (c.unit ? ' [' + c.unit + ']' : ''),
-        stroke: s.color, width: s.width, spanGaps: false, points: {show: false},
+        stroke: s.color, width: s.width, spanGaps: false,
+        // dots where the curve is drawn coarser than the window's level (stored no finer)
+        points: {show: (u, si) => p.levels !== undefined && p.levels[si - 1] > api.level,
+                 size: 5},
       };
       if (s.dash) opts.dash = [6, 4];
       if (s.stepped) opts.paths = uPlot.paths.stepped({align: 1});
@@ -366,7 +387,8 @@
       series.push(opts);
     }
     // one y-axis width for every plot (the state names need it), so the time axes line up
-    const axes = [{label: 't [s]'}, {label: p.y, values: axisValues, size: 110, labelSize: 30}];
+    const axes = [{label: 't [s]', values: timeValues, space: 90},
+                  {label: p.y, values: axisValues, size: 110, labelSize: 30}];
     const scales = {x: {time: false, auto: false}};
     if (p.id === 'state') {
       const n = meta.states.length;

@@ -22,7 +22,7 @@ import base64
 from importlib import resources
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from ..bags.bag import BagError
 from .zoom_data import ZoomData
@@ -64,8 +64,9 @@ def asset(name: str) -> str:
                        '(or use --no-html)') from None
 
 
-def _streams(data: ZoomData) -> tuple[bytes, list[list[int]], dict[str, Any], dict[str, Any]]:
-    """Return the blob, the stream table ([offset, length]) and the meta of time and curves."""
+def _streams(data: ZoomData
+             ) -> tuple[list[bytes], list[list[int]], dict[str, Any], dict[str, Any]]:
+    """Return the streams, their table ([offset, length] in the blob) and the meta."""
     parts: list[bytes] = []
     table: list[list[int]] = []
     offset = 0
@@ -92,7 +93,20 @@ def _streams(data: ZoomData) -> tuple[bytes, list[list[int]], dict[str, Any], di
             entry['levels'] = [put(b) for b in sc.streams['levels']]
             entry['base'] = sc.base_level
         curves[key] = entry
-    return b''.join(parts), table, time, curves
+    return parts, table, time, curves
+
+
+def _base64(parts: list[bytes], chunk: int = 3 << 20) -> Iterator[str]:
+    """Yield the base64 of the parts joined, a chunk at a time (multiples of 3 bytes)."""
+    carry = b''
+    for part in parts:
+        buf = carry + part
+        cut = len(buf) // chunk * chunk
+        for a in range(0, cut, chunk):
+            yield base64.b64encode(buf[a:a + chunk]).decode('ascii')
+        carry = buf[cut:]
+    if carry:
+        yield base64.b64encode(carry).decode('ascii')
 
 
 def _summary(report: dict[str, Any]) -> list[str]:
@@ -116,9 +130,9 @@ def page(data: ZoomData, report: dict[str, Any], states: list[str]) -> str:
     return ''.join(page_parts(data, report, states))
 
 
-def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> list[str]:
-    """Return the page's text in parts (written one after the other: no second copy)."""
-    blob, table, time, curves = _streams(data)
+def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> Iterator[str]:
+    """Yield the page's text in parts (written one after the other: no copy of the whole)."""
+    streams, table, time, curves = _streams(data)
     plots = []
     for pid, title, ylabel, series in PLOTS:
         present = [{'key': k, 'color': col, 'width': w, 'dash': dash, 'stepped': st}
@@ -136,12 +150,10 @@ def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> lis
         'states': states, 'time': time, 'curves': curves, 'plots': plots, 'streams': table,
     }
     meta_json = json.dumps(meta, allow_nan=False).replace('</', '<\\/')
-    b64 = base64.b64encode(blob).decode('ascii')
-    del blob
     licence = asset('vendor/uplot/LICENSE').replace('*/', '* /')
     csp = ("default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
            "img-src data:")
-    return [
+    yield from [
         '<!doctype html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n',
         f'<meta http-equiv="Content-Security-Policy" content="{csp}">\n',
         '<meta name="viewport" content="width=device-width, initial-scale=1">\n',
@@ -160,8 +172,10 @@ def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> lis
         'the window holds at most a few per pixel; wider windows draw the min and max of '
         'each bucket of samples, so no extreme is lost.</p>\n<p id="stored"></p>\n',
         '<script type="application/json" id="ladrc-meta">', meta_json, '</script>\n',
-        '<script type="application/octet-stream" id="ladrc-data">', b64, '</script>\n',
-        '<script>\n', asset('html_report.js'), '\n</script>\n</body>\n</html>\n']
+        '<script type="application/octet-stream" id="ladrc-data">']
+    yield from _base64(streams)
+    yield from ['</script>\n',
+                '<script>\n', asset('html_report.js'), '\n</script>\n</body>\n</html>\n']
 
 
 def _esc(text: str) -> str:
