@@ -48,6 +48,7 @@ class BusUnits:
         return self.v in (name, 'all')
 
     def step(self, tick: TickInput) -> float:
+        """One tick through the bus's units (the runner's controller interface)."""
         gap, enc, enabled = tick.gap_mm, tick.encoder_mm, tick.drive_enabled
         if self._on('gap_counts') and tick.gap_valid:
             gap, _ = self.analog.mm(self.analog.counts(gap))
@@ -64,6 +65,7 @@ class BusUnits:
         return u
 
     def command(self, name: str, **kwargs) -> None:
+        """Pass a follow command of the scenario to the controller."""
         self.ctrl.command(name, **kwargs)
 
 

@@ -87,7 +87,7 @@ class DriverParams(Section):
                                   le=65535, runtime=False)
     missing_tpdo_cycles: int = param(6, '1', 'free-running: this many cycles in a row '
                                      'without both TPDOs of their SYNC is a drive fault (6: '
-                                     '3 ms at 0.5 ms, 6 ms at 1 ms, within the controller\'s '
+                                     "3 ms at 0.5 ms, 6 ms at 1 ms, within the controller's "
                                      '10 ms stale-input limit)', ge=1, le=1000, runtime=False)
     raw_only: bool = param(False, '', 'publish the analog count as the raw value (raw_hz) and '
                            'no gap (gap_mm NaN): the controller converts it with its '

@@ -19,7 +19,7 @@ from launch.substitutions import LaunchConfiguration
 # no scenario, and no lock step: it is the sim node's (a drive does not wait for its controller)
 ARGUMENTS = {k: v for k, v in LAUNCH_ARGUMENTS.items() if k not in ('scenario', 'lockstep')}
 ARGUMENTS.update({
-    'cia402_eds': ('', "a CiA 402 drive on CANopen: its EDS or DCF; starts the shipped driver "
+    'cia402_eds': ('', 'a CiA 402 drive on CANopen: its EDS or DCF; starts the shipped driver '
                    'node (ladrc_cia402 driver_node, docs/cia402.md); empty: your own driver'),
     'can': ('can0', 'with cia402_eds: the socketcan channel (or ws://127.0.0.1:PORT/)'),
     'node_id': ('5', "with cia402_eds: the drive's CANopen node id"),
