@@ -37,9 +37,15 @@ holds on 2 cores): the driver SIGKILLed, the emulated drive SIGKILLed, the bus s
 EMCY following error, a second master's RPDOs at -50 mm/s, random frames on the bus; last-line
 keys ``canopen_kill_stop_ms`` and ``canopen_node_crashes``.
 
+LinuxCNC rows (``linuxcnc``, issue 42; ``bringup --cnc linuxcnc --fault``, a three-contour
+job): LinuxCNC SIGKILLed while cutting (the controller lifts the head and stops), the bridge
+SIGKILLed (LinuxCNC holds its feed and pauses, the controller holds on the stale CNC), LinuxCNC's
+estop while cutting; each with the contact, the nozzle's fall after the fault, its lift, the
+controller's final state (``linuxcnc_rows``); last-line key ``linuxcnc_rows_not_run``.
+
 ``--only PART`` runs one part of the matrix: ``headless`` (the headless rows), ``param-fuzz``,
-``cnc-fuzz`` (the CNC interface fuzz, the cheapest: tests/test_benches.py runs it) or ``live``;
-the summary's figures of the parts not run are 0 or null.
+``cnc-fuzz`` (the CNC interface fuzz, the cheapest: tests/test_benches.py runs it), ``live``,
+``canopen`` or ``linuxcnc``; the summary's figures of the parts not run are 0 or null.
 """
 
 from __future__ import annotations
@@ -336,6 +342,79 @@ class CncFuzz(Corrupt):
         if 'exception' in self.c.fault_reason:
             self.exceptions += 1
         return u
+
+
+LINUXCNC_FAULTS = (('kill-linuxcnc', 'LinuxCNC SIGKILLed while cutting'),
+                   ('kill-bridge', 'LinuxCNC bridge SIGKILLed while cutting'),
+                   ('estop', 'LinuxCNC estop while cutting'))
+"""The LinuxCNC rows (issue 42): ``bringup --cnc linuxcnc --fault KIND@SECONDS``."""
+
+
+def linuxcnc_rows(at_s: float = 2.5) -> int:
+    """Run the LinuxCNC rows: a three-contour job under LinuxCNC, a fault ``at_s`` after start.
+
+    From the run's bag (the sim's truth, the controller's status, by the fault's wall time) and
+    its figures: ``contact``, ``min_true_gap_after_mm``, ``down_after_mm`` (the nozzle's fall
+    below its height at the fault: nothing toward the sheet), ``lift_mm`` (its rise after it),
+    ``final_state`` (the controller's, IDLE: stopped), ``stale_hold`` (held on a stale CNC),
+    and LinuxCNC's side (``paused``, ``feed_hold``: from its HAL pins or the bridge's log).
+    Returns the rows that could not run (LinuxCNC missing: 0 rows, a line).
+    """
+    from ladrc_linuxcnc.machine import missing
+    from ladrc_tools.bags.bag import BagError, open_bag
+    from linuxcnc_runs import bringup_linuxcnc, small_job
+
+    why = missing()
+    if why:
+        print(f'LinuxCNC rows not run: {why}')
+        return len(LINUXCNC_FAULTS)
+    failed = 0
+    for kind, name in LINUXCNC_FAULTS:
+        tmp = Path(tempfile.mkdtemp(prefix='fault-linuxcnc-'))
+        try:
+            job = small_job(tmp / 'job')
+            rc, f, err = bringup_linuxcnc(job, tmp / 'logs', '--fault', f'{kind}@{at_s:g}',
+                                          '--bag', str(tmp / 'bag'), '--domain-id',
+                                          str(random.randint(120, 200)), timeout_s=300.0)
+            fault = f.get('linuxcnc', {}).get('fault')
+            if not fault:
+                print(f'   {name}: no fault injected: {f.get("aborted")} {err[-500:]}')
+                failed += 1
+                continue
+            t_fault = float(fault['t_wall_s'])
+            try:
+                b = open_bag(tmp / 'bag')
+                truth = b.columns('sim/truth', ['true_gap_mm', 'nozzle_mm'])
+                status = b.columns('follow/status', ['state', 'substate', 'hold_reason'])
+            except (BagError, ValueError, KeyError) as exc:
+                print(f'   {name}: bag unreadable: {exc}')
+                failed += 1
+                continue
+            tt = truth['timestamp_ns'] * 1e-9
+            after = tt >= t_fault
+            nozzle_at = float(truth['nozzle_mm'][np.argmax(after)]) if after.any() else math.nan
+            st = status['timestamp_ns'] * 1e-9 >= t_fault
+            reasons = [str(r) for r, s in zip(status['hold_reason'][st],
+                                              status['substate'][st], strict=True) if s == 7]
+            bridge = f['linuxcnc'].get('bridge', {})
+            hal = fault.get('linuxcnc_after', {})
+            row(name, contact=bool(np.nanmin(truth['true_gap_mm']) <= 0.0),
+                min_true_gap_after_mm=round(float(np.nanmin(truth['true_gap_mm'][after])), 4)
+                if after.any() else None,
+                down_after_mm=round(nozzle_at - float(np.nanmin(truth['nozzle_mm'][after])), 4)
+                if after.any() else None,
+                lift_mm=round(float(np.nanmax(truth['nozzle_mm'][after])) - nozzle_at, 4)
+                if after.any() else None,
+                final_state=int(status['state'][-1]) if len(status['state']) else None,
+                stale_hold=any(r.startswith('CNC motion stale') for r in reasons),
+                bridge_aborted=bridge.get('aborted'), bridge_lifts=bridge.get('lifts'),
+                paused=bool(hal.get('is-paused', f['linuxcnc'].get('paused'))),
+                feed_hold=hal.get('feed-hold-in'), link_ok=hal.get('link-ok'),
+                estop=f['linuxcnc'].get('estop'),
+                at_s=fault.get('at_s'), job_aborted=f.get('aborted'))
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return failed
 
 
 def cnc_fuzz(rng: random.Random) -> None:
@@ -990,7 +1069,8 @@ def main() -> None:
     ap.add_argument('--clients-s', type=float, default=18.0,
                     help='seconds of the parameter clients row (rounds of 20 processes)')
     ap.add_argument('--skip-live', action='store_true', help='headless rows only')
-    ap.add_argument('--only', choices=('headless', 'param-fuzz', 'cnc-fuzz', 'live', 'canopen'),
+    ap.add_argument('--only', choices=('headless', 'param-fuzz', 'cnc-fuzz', 'live', 'canopen',
+                                       'linuxcnc'),
                     help='run only this part of the matrix [all]')
     a = ap.parse_args()
     rng = random.Random(7)
@@ -1018,6 +1098,9 @@ def main() -> None:
             live_error = (live_error + '; ' if live_error else '') + (
                 'CiA 402 rows: ' + ' '.join(str(exc).split())[:300])
             print(f'CiA 402 rows stopped: {live_error}')
+    linuxcnc_not_run = None
+    if a.only in (None, 'linuxcnc') and not a.skip_live:
+        linuxcnc_not_run = linuxcnc_rows()
     live_tried, live_accepted = live.get('live_params', (0, 0))
     summary = {
         'contacts': sum(1 for r in ROWS if r.get('contact') is True),
@@ -1049,6 +1132,8 @@ def main() -> None:
         'canopen_kill_stop_ms': canopen.get('canopen_driver_kill_stop_ms'),
         'canopen_node_crashes': canopen.get('canopen_node_crashes'),
         'live_error': live_error,  # '' when every live row ran
+        # the LinuxCNC rows that could not run (LinuxCNC missing; null: not asked for)
+        'linuxcnc_rows_not_run': linuxcnc_not_run,
         'wall_s': round(time.monotonic() - t0, 1),
         'rows': ROWS,
     }

@@ -1,22 +1,26 @@
 """The zoomable HTML report of a long bag: size, report time with and without it, render time.
 
     scripts/in-env python bench/html_report.py [--bag DIR] [--seconds 3600] [--out DIR]
+                                               [--rounds N]
 
 Without ``--bag``, a headless run of ``--seconds`` (the bag benches' shift: follow at 1 mm over
 a 0.3 mm, 0.5 Hz sine sheet, the shipped controller; ``bench/bag_scale.py``) is written as a
 bag first (``--out``: there, kept; else in a temporary folder). Then ``ladrc report BAG`` (with
-``report.html``) and ``ladrc report BAG --no-html``, each in its own process (wall time and
-that process's peak RSS), and, where Chromium is installed, the page opened in headless
-Chromium (tests/support/chromium_cdp.py): the time from the navigation's start to every plot
-drawn (the page's ``performance.now()`` then), then a zoom to the 50 ms window from the middle
-of the run, where the page must draw every sample of the measured gap.
+``report.html``) and ``ladrc report BAG --no-html``, alternating, ``--rounds`` times, each in
+its own process (wall time, CPU time and that process's peak RSS), and, where Chromium is
+installed, the page opened in headless Chromium (tests/support/chromium_cdp.py): the time from
+the navigation's start to every plot drawn (the page's ``performance.now()`` then), then a zoom
+to the 50 ms window from the middle of the run, where the page must draw every sample of the
+measured gap.
 
 Last line: JSON with ``seconds``, ``ticks``, ``bag_bytes``, ``html_bytes``, ``write_s`` (the
-report with its HTML), ``write_peak_rss_mib``, ``report_no_html_s``,
-``report_no_html_peak_rss_mib``, ``html_parts`` (compressed bytes of each curve's streams,
-before base64), ``chromium_render_s`` (navigation start to every plot drawn; null without
-Chromium), ``chromium_wall_s`` (the same, measured from here), ``page_timing`` (the page's
-base64, inflate, decode and draw times [ms]), ``console_errors``, ``full_view_level``,
+report with its HTML), ``write_cpu_s``, ``write_peak_rss_mib``, ``report_no_html_s``,
+``report_no_html_cpu_s``, ``report_no_html_peak_rss_mib`` (each the least of the rounds: a
+shared machine only slows a run down), ``rounds`` (every round's wall and CPU times),
+``html_parts`` (compressed bytes of each curve's streams, before base64),
+``chromium_render_s`` (navigation start to every plot drawn; null without Chromium),
+``chromium_wall_s`` (the same, measured from here), ``page_timing`` (the page's base64,
+inflate, decode and draw times [ms]), ``console_errors``, ``full_view_level``,
 ``level_50ms`` (0: every sample), ``points_in_50ms_window`` and ``samples_in_window`` (the
 measured gap's points drawn in that window and the bag's samples in it: equal),
 ``command_points_in_50ms_window`` and ``zoom_s``.
@@ -28,6 +32,7 @@ import argparse
 import json
 from pathlib import Path
 import re
+import resource
 import shutil
 import sys
 import tempfile
@@ -59,6 +64,17 @@ def _html_parts(html: Path) -> dict[str, int]:
         ids = [c[k] for k in ('raw', 'index', 'value') if k in c] + c.get('levels', [])
         out[key] = sum(size[i] for i in ids)
     return out
+
+
+def _timed(args: list[str]) -> dict:
+    """Run ``ladrc ARGS`` in its own process: bag_scale's wall time and peak RSS, CPU time."""
+    from bag_scale import _tool
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    r = _tool(args)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    r['cpu_s'] = round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 2)
+    return r
 
 
 def _browser(html: Path, t_s: np.ndarray, work: Path) -> dict:
@@ -95,8 +111,9 @@ def main() -> None:
     ap.add_argument('--bag', default=None, help='bag (default: write a headless one)')
     ap.add_argument('--seconds', type=float, default=3600.0, help='headless bag length [s]')
     ap.add_argument('--out', default=None, help='write the headless bag here (kept)')
+    ap.add_argument('--rounds', type=int, default=1,
+                    help='report with and without the HTML, alternating, this many times')
     a = ap.parse_args()
-    from bag_scale import _tool  # a ladrc command in its own process: wall time, peak RSS
     from ladrc_tools.offline.codec import quantise
     from ladrc_tools.offline.zoom_data import TIME_RES_S
 
@@ -116,19 +133,36 @@ def main() -> None:
         files = [bag] if bag.is_file() else list(bag.iterdir())
         result: dict = {'seconds': round(float(t_s[-1]), 3), 'ticks': int(t_s.size),
                         'bag_bytes': sum(f.stat().st_size for f in files)}
-        with_html = _tool(['report', str(bag), '-o', str(tmp / 'with'), '-q'])
-        without = _tool(['report', str(bag), '-o', str(tmp / 'without'), '-q', '--no-html'])
-        for name, r in (('with html', with_html), ('without', without)):
-            print(f'ladrc report ({name}): {r["wall_s"]} s, {r["peak_rss_mib"]} MiB',
-                  file=sys.stderr, flush=True)
-            if r['rc'] != 0:
-                raise SystemExit(f'ladrc report ({name}) exit {r["rc"]}')
-        html = tmp / 'with' / 'report.html'
-        result.update({'html_bytes': html.stat().st_size, 'write_s': with_html['wall_s'],
-                       'write_peak_rss_mib': with_html['peak_rss_mib'],
-                       'report_no_html_s': without['wall_s'],
-                       'report_no_html_peak_rss_mib': without['peak_rss_mib'],
-                       'html_parts': _html_parts(html)})
+        runs: dict[str, list[dict]] = {'with': [], 'without': []}
+        for k in range(max(1, a.rounds)):
+            for name, extra in (('with', []), ('without', ['--no-html'])):
+                out = tmp / f'{name}{k}'
+                r = _timed(['report', str(bag), '-o', str(out), '-q', *extra])
+                print(f'ladrc report ({name} html, round {k + 1}): {r["wall_s"]} s, '
+                      f'CPU {r["cpu_s"]} s, {r["peak_rss_mib"]} MiB', file=sys.stderr,
+                      flush=True)
+                if r['rc'] != 0:
+                    raise SystemExit(f'ladrc report ({name} html) exit {r["rc"]}')
+                runs[name].append(r)
+                if k or name == 'without':
+                    shutil.rmtree(out, ignore_errors=True)
+        html = tmp / 'with0' / 'report.html'
+
+        def least(name: str, key: str) -> float | None:
+            values = [r[key] for r in runs[name] if r[key] is not None]
+            return min(values) if values else None
+
+        result.update({
+            'html_bytes': html.stat().st_size, 'write_s': least('with', 'wall_s'),
+            'write_cpu_s': least('with', 'cpu_s'),
+            'write_peak_rss_mib': least('with', 'peak_rss_mib'),
+            'report_no_html_s': least('without', 'wall_s'),
+            'report_no_html_cpu_s': least('without', 'cpu_s'),
+            'report_no_html_peak_rss_mib': least('without', 'peak_rss_mib'),
+            'rounds': [{'with_s': w['wall_s'], 'with_cpu_s': w['cpu_s'],
+                        'without_s': o['wall_s'], 'without_cpu_s': o['cpu_s']}
+                       for w, o in zip(runs['with'], runs['without'], strict=True)],
+            'html_parts': _html_parts(html)})
         browser = {k: None for k in ('chromium_render_s', 'chromium_wall_s', 'page_timing',
                                      'full_view_level', 'level_50ms', 'points_in_50ms_window',
                                      'samples_in_window', 'command_points_in_50ms_window',

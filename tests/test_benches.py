@@ -8,7 +8,7 @@ Nothing here looks at a figure's size: the benches measure time, the tests only 
 (a loaded machine makes them slower, never failed); the timeouts are bounds on a hang.
 
 The benches that start ROS nodes (``stalls``, ``loop_timing``, ``live_jobs``,
-``view_load``) carry the ``ros`` marker and run in the isolation of the ROS tests: the
+``view_load``, ``linuxcnc_jobs``) carry the ``ros`` marker and run in the isolation of the ROS tests: the
 ROS_DOMAIN_ID and localhost discovery of tests/ros/conftest.py (loaded from there, as
 tests/commissioning/test_calibration_live.py does), passed to the bench's own ``--domain-id``
 where it has one. Not run here: the live part of ``bag_scale`` (``--part live``) and the live
@@ -209,8 +209,9 @@ def test_html_report() -> None:
     """The zoomable report of a 2 s bag; the browser figures are null without Chromium."""
     r = run_bench('html_report', '--seconds', '2', timeout_s=600)
     check(r, {'seconds': NUM, 'ticks': INT, 'bag_bytes': INT, 'html_bytes': INT, 'write_s': NUM,
-              'write_peak_rss_mib': OPT_NUM, 'report_no_html_s': NUM,
-              'report_no_html_peak_rss_mib': OPT_NUM, 'html_parts': DICT,
+              'write_cpu_s': NUM, 'write_peak_rss_mib': OPT_NUM, 'report_no_html_s': NUM,
+              'report_no_html_cpu_s': NUM, 'report_no_html_peak_rss_mib': OPT_NUM,
+              'rounds': LIST, 'html_parts': DICT,
               'chromium_render_s': OPT_NUM, 'chromium_wall_s': OPT_NUM,
               'page_timing': OPT_DICT, 'console_errors': (LIST, NULL),
               'full_view_level': (INT, NULL), 'level_50ms': (INT, NULL),
@@ -346,6 +347,30 @@ def test_live_jobs(ros_env: dict[str, str]) -> None:
     check(job['headless'], figures, 'headless: ')
     # the live figures are bringup's last line: none if bringup failed (the bench goes on)
     check(job['live'], figures | {'realtime_x': NUM}, 'live: ')
+
+
+@pytest.mark.ros
+def test_linuxcnc_jobs(ros_env: dict[str, str]) -> None:
+    """The shortest shipped job, one LinuxCNC run with the allowance; no live sim, no extras."""
+    from system import require
+
+    require('linuxcnc')
+    r = run_bench('linuxcnc_jobs', '--jobs', 'tipping_pair', '--runs', '1', '--allowances',
+                  'allowance', '--blend-job', 'none', '--gcode-job', 'none', '--no-sim-live',
+                  '--domain-id', ros_env['ROS_DOMAIN_ID'], timeout_s=900, env=ros_env)
+    check(r, {'jobs': DICT, 'runs': INT, 'allowances': LIST, 'blend': NULL, 'foreign': NULL,
+              'all_ok': BOOL, 'wall_s': NUM})
+    job = r['jobs']['tipping_pair']
+    check(job, {'headless': DICT, 'sim_live': NULL, 'linuxcnc': DICT, 'ran_to_end': DICT,
+                'verdict': STR}, 'jobs/tipping_pair: ')
+    figures = {'job_time_s': NUM, 'holds': DICT, 'corner_max_down_mm': NUM, 'contacts': INT,
+               'faults': INT, 'pierces': INT}
+    check(job['headless'], figures, 'headless: ')
+    runs = job['linuxcnc']['allowance']
+    assert len(runs) == 1 and job['ran_to_end']['allowance'][1] == 1
+    # a LinuxCNC run's figures are bringup's last line (the bench goes on if it failed)
+    check(runs[0], figures | {'bridge_moved_before_ready': INT, 'm62_holds': INT},
+          'linuxcnc/allowance[0]: ')
 
 
 @pytest.mark.ros

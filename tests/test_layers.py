@@ -9,6 +9,13 @@ Read from the source files (ast), nothing is imported:
   matplotlib, scipy;
 * ``ladrc_cia402`` (the CiA 402 drive, machine side) imports neither ``ladrc_sim`` nor
   ``ladrc_tools``; its CANopen layer (``ds402``, ``emcy``, ``units``, ``mapping``) no rclpy;
+* ``ladrc_linuxcnc`` (the LinuxCNC bridge, machine side) imports neither ``ladrc_sim`` nor
+  ``ladrc_tools`` (the post-processor, ``ladrc_tools/cam``, is the tools'); its files that run
+  on the system Python inside LinuxCNC (``hal_component``, ``display``, ``z_filter``,
+  ``gcode_path``, and ``protocol`` they share) import only the standard library, LinuxCNC's own
+  modules and ``protocol``: no rclpy, no numpy, nothing of the contract; LinuxCNC's modules
+  (``hal``, ``linuxcnc``, ``gcode``: the Debian package linuxcnc-uspace, no rosdep key) only
+  there;
 * each package's package.xml has a ``<depend>`` or ``<exec_depend>`` for every third-party
   top-level module its Python files import (including imports inside functions).
 """
@@ -24,9 +31,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
-PACKAGES = ('ladrc_contract', 'ladrc_cia402', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools')
+PACKAGES = ('ladrc_contract', 'ladrc_cia402', 'ladrc_linuxcnc', 'ladrc_follow', 'ladrc_sim',
+            'ladrc_tools')
 PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning',
-                'fleet', 'cia402')
+                'fleet', 'cia402', 'cam')
+LINUXCNC_SIDE = ('hal_component.py', 'display.py', 'z_filter.py', 'gcode_path.py',
+                 'protocol.py')  # ladrc_linuxcnc's files on the system Python, inside LinuxCNC
+LINUXCNC_MODULES = {'hal', 'linuxcnc', 'gcode'}  # LinuxCNC's own (system Python only)
 CIA402_PURE = ('ds402.py', 'emcy.py', 'units.py', 'mapping.py', 'master.py')  # plain layer
 
 # top-level module -> rosdep key / ROS package name in package.xml
@@ -48,6 +59,7 @@ DEPEND_KEY = {
     'ladrc_msgs': 'ladrc_msgs',
     'ladrc_contract': 'ladrc_contract',
     'ladrc_cia402': 'ladrc_cia402',
+    'ladrc_linuxcnc': 'ladrc_linuxcnc',
     'canopen': 'python3-canopen-pip',  # pip on every path (requirements/stock.txt)
     'can': 'python3-can',
     'std_msgs': 'std_msgs',
@@ -155,8 +167,8 @@ def test_package_xml_declares_every_import(package):
             continue
         if p.relative_to(SRC / package).parts[0] == 'test':  # colcon test: test_depend
             tests |= third_party(_imports(p), package)
-        else:
-            modules |= third_party(_imports(p), package)
+        else:  # (LinuxCNC's own modules: checked by test_the_linuxcnc_package_is_machine_side)
+            modules |= third_party(_imports(p), package) - LINUXCNC_MODULES
     xml = (SRC / package / 'package.xml').read_text(encoding='utf-8')
     assert not missing_depends(modules, xml)
     assert tests and not missing_depends(tests, xml, TEST_DEPEND_TAGS)
@@ -233,3 +245,23 @@ def test_machine_side_packages_do_not_import_the_live_view():
                  for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_cia402')
                  for p in _py_files(pkg)}
     assert not {k: v for k, v in offenders.items() if v}
+
+
+def test_the_linuxcnc_package_is_machine_side():
+    """ladrc_linuxcnc runs beside LinuxCNC: never the simulator or the tools (module docstring).
+
+    Its LinuxCNC side runs on the system Python (whatever Python the venv was made from):
+    standard library, LinuxCNC's modules and the shared protocol only; LinuxCNC's modules
+    nowhere else in the project.
+    """
+    files = _py_files('ladrc_linuxcnc')
+    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_sim', 'ladrc_tools'}) for p in files}
+    assert not {k: v for k, v in offenders.items() if v}
+    side = [p for p in files if p.name in LINUXCNC_SIDE and p.parent.name == 'ladrc_linuxcnc']
+    assert len(side) == len(LINUXCNC_SIDE)
+    for p in side:
+        extra = third_party(_imports(p), 'ladrc_linuxcnc') - LINUXCNC_MODULES
+        assert not extra, f'{_rel(p)} runs on the system Python: it imports {sorted(extra)}'
+    elsewhere = [_rel(p) for pkg in PACKAGES for p in _py_files(pkg)
+                 if _imports(p) & LINUXCNC_MODULES and p not in side]
+    assert not elsewhere, f"LinuxCNC's modules imported off its side: {elsewhere}"

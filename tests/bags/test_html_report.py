@@ -19,7 +19,7 @@ from pathlib import Path
 import re
 import sys
 
-from ladrc_tools.bags.bag import open_bag
+from ladrc_tools.bags.bag import BagError, open_bag
 from ladrc_tools.cli import main as ladrc
 from ladrc_tools.offline import html_report, zoom_data
 from ladrc_tools.offline.codec import (
@@ -187,6 +187,13 @@ def test_the_blob_is_base64_of_the_streams_joined_whatever_the_chunk():
     whole = base64.b64encode(b''.join(parts)).decode('ascii')
     for chunk in (3, 6, 30, 3 << 20):
         assert ''.join(html_report._base64(parts, chunk)) == whole
+
+
+def test_a_missing_page_file_is_one_line_naming_it():
+    with pytest.raises(BagError, match=r'cannot find its file nope\.js .*--no-html'):
+        html_report.asset('nope.js')
+    for name in html_report.ASSETS:  # shipped with the package
+        assert html_report.asset(name)
 
 
 def test_aux_level_keeps_the_finest_level_that_fits():

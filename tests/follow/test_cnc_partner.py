@@ -218,6 +218,30 @@ def test_hold_at_the_next_segment_waits_for_the_segment_and_release_now_ends_it(
     assert run(loop, 0.01)[-1] == int(SubState.NONE)
 
 
+def test_a_cnc_gone_silent_lifts_the_head_once_and_holds_it_there():
+    """cnc.stale_lift_s (issue 42: the bridge killed): held first, then lifted, never down."""
+    loop, cnc = following()
+    c = loop.c
+    p = c.params.cnc
+    cnc.silent = True
+    i0 = loop.i
+    sub = run(loop, p.stale_lift_s + 0.6)
+    lift_at = sub.index(int(SubState.LIFT))
+    assert abs(lift_at * H - p.stale_lift_s) < 3 * H  # held until then (HOLD, stale)
+    assert set(sub[int(p.stale_timeout_s / H) + 2:lift_at]) == {int(SubState.HOLD)}
+    held = i0 + sub.index(int(SubState.HOLD))
+    assert min(loop.u[held:]) >= 0.0  # nothing toward the sheet, held or lifting
+    assert sub[-1] == int(SubState.LIFT) and c.internals()['in_position']
+    assert loop.gap[-1] == pytest.approx(1.0 + p.stale_lift_mm, abs=0.15)
+    rise = loop.gap[-1]
+    run(loop, 0.5)  # still silent: no second lift, the head stays
+    assert loop.gap[-1] == pytest.approx(rise, abs=0.05)
+    off = ControllerParams()
+    loop, cnc = following(replace(off, cnc=replace(off.cnc, stale_lift_s=0.0)))
+    cnc.silent = True
+    assert int(SubState.LIFT) not in run(loop, 1.0)  # 0: hold only
+
+
 def test_a_silent_cnc_holds_with_its_reason_and_any_fault_asks_for_a_feed_hold():
     loop, cnc = following()
     c = loop.c

@@ -182,20 +182,21 @@ class Chromium:
 
     # ---- what the page did ------------------------------------------------------------------
     def console_errors(self) -> list[str]:
-        """Return the console's errors and warnings, uncaught exceptions and log errors."""
+        """Return the console's errors, uncaught exceptions and the log's errors (CSP, loads).
+
+        Warnings are not errors (a browser's deprecation notes): :meth:`console_log` has them.
+        """
         out = []
         for ev in self.events:
             m, p = ev['method'], ev.get('params', {})
-            if m == 'Runtime.consoleAPICalled' and p.get('type') in ('error', 'warning',
-                                                                       'assert'):
+            if m == 'Runtime.consoleAPICalled' and p.get('type') in ('error', 'assert'):
                 out.append(f'console.{p["type"]}: ' + ' '.join(
                     str(a.get('value', a.get('description', ''))) for a in p.get('args', [])))
             elif m == 'Runtime.exceptionThrown':
                 d = p.get('exceptionDetails', {})
                 out.append('exception: ' + str(d.get('exception', {}).get('description')
                                                or d.get('text')))
-            elif m == 'Log.entryAdded' and p.get('entry', {}).get('level') in ('error',
-                                                                                'warning'):
+            elif m == 'Log.entryAdded' and p.get('entry', {}).get('level') == 'error':
                 e = p['entry']
                 out.append(f'log.{e["level"]} ({e.get("source")}): {e.get("text")}')
         return out

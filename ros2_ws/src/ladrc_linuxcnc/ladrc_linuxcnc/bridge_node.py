@@ -66,6 +66,9 @@ COMMANDS = ('pierce', 'lift', 'hold', 'leapfrog', 'stop_follow')
 ANSWERS = ('state', 'substate', 'in_position', 'ready_to_move', 'feed_hold_request',
            'feed_override_request', 'fault_reason', 'velocity_mm_s', 'gap_seq')
 """The ``FollowStatus`` fields the bridge reads."""
+ACK_TIMEOUT_S = 10.0
+"""The job's log (cnc/job) is kept until every reader acknowledged it, this long at most: the
+latched sample goes with its writer, and on a loaded machine the sim may take seconds."""
 MOTION_FIELDS = ('x_mm', 'y_mm', 'commanded_feed_mm_s', 'actual_feed_mm_s', 'segment',
                  'beam_on', 'contour', 'segment_left_mm', 'edge_ahead_mm')
 
@@ -278,7 +281,10 @@ class BridgeNode(LoopNode):
                 self.last = sample
             if out is not None:
                 self.publish_motion(out.motion)
-                self.send_outputs(out.outputs)
+                try:
+                    self.send_outputs(out.outputs)
+                except OSError as exc:  # (BrokenPipe, reset: the component died meanwhile)
+                    self._gone(f'socket error: {exc.strerror or exc}', now_s)
             if seq.end_ready(self.answers, now_s) and self.p.exit_at_end:
                 return
 
@@ -290,7 +296,7 @@ class BridgeNode(LoopNode):
             except OSError:
                 pass
             self.sock = None
-        for name, args in self.seq.linuxcnc_gone(why, now_s):
+        for name, args in self.seq.linuxcnc_gone(why, now_s, self.answers):
             self.send_command(name, args)
 
     def publish_log(self) -> str:
@@ -362,7 +368,10 @@ def main(argv: list[str] | None = None) -> int:
                                       f'{node.p.wait_for_controller_s:g} s (follow services '
                                       'and a follow/status with a sensor sample)')
                 # meanwhile LinuxCNC waits: the component keeps its safe outputs
-                node.send_outputs(p.HalOutputs(0, 1.0, p.O_FEED_HOLD, 0))
+                try:
+                    node.send_outputs(p.HalOutputs(0, 1.0, p.O_FEED_HOLD, 0))
+                except OSError as exc:
+                    raise BridgeError(f'LinuxCNC gone before the job: {exc}') from None
                 time.sleep(0.02)
         except BridgeError as exc:
             print(f'bridge_node: {exc}', file=sys.stderr)
@@ -378,7 +387,10 @@ def main(argv: list[str] | None = None) -> int:
             node.seq.log.aborted = 'interrupted'
         text = node.publish_log()
         node.safe_stop()
-        wait_acknowledged((node.pub_job,), 2.0)
+        late = wait_acknowledged((node.pub_job,), ACK_TIMEOUT_S)
+        if late:
+            node.get_logger().warning(f'cnc/job not acknowledged by every reader within '
+                                      f'{ACK_TIMEOUT_S:g} s')
         print(text, flush=True)
         return 0
     finally:

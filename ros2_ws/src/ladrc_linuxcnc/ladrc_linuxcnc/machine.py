@@ -291,8 +291,15 @@ def rtapi_env(run_dir: Path, ini: Path | None = None) -> dict[str, str]:
     if ini is not None:
         env[RUN_MARK] = str(ini)
     if os.geteuid() == 0:
-        fifo_dir = Path(run_dir) / 'rtapi'
-        fifo_dir.mkdir(exist_ok=True)
+        # rtapi_app runs as RTAPI_UID: its socket's folder must be one that uid can reach
+        # (/tmp/ladrc-rtapi-*, 0777; a run's folder may sit under a private one, e.g. pytest's)
+        link = Path(run_dir) / 'rtapi'
+        if link.is_symlink():
+            fifo_dir = link.resolve()
+        else:
+            fifo_dir = Path(tempfile.mkdtemp(prefix='ladrc-rtapi-', dir='/tmp'))
+            link.unlink(missing_ok=True)
+            link.symlink_to(fifo_dir)
         fifo_dir.chmod(0o777)
         env['RTAPI_UID'] = env.get('RTAPI_UID', str(NOBODY_UID))
         env['RTAPI_FIFO_PATH'] = str(fifo_dir / 'rtapi_fifo')
@@ -542,6 +549,35 @@ class LinuxCnc:
                 LINUXCNC_LOCK.unlink(missing_ok=True)
             if self.socket_path:
                 shutil.rmtree(Path(self.socket_path).parent, ignore_errors=True)
+            fifo = self.env.get('RTAPI_FIFO_PATH')
+            if fifo and Path(fifo).parent.name.startswith('ladrc-rtapi-'):
+                shutil.rmtree(Path(fifo).parent, ignore_errors=True)
             return out
         finally:
             self._release_lock()
+
+
+def read_program(path: str | Path, ini: str | Path | None = None,
+                 timeout_s: float = 120.0) -> dict[str, Any]:
+    """Return a program's path as LinuxCNC's own interpreter reads it (:mod:`.gcode_path`).
+
+    Runs on the system Python (LinuxCNC's ``gcode`` module); ``ini``: a running LinuxCNC's
+    INI (its tool table: a program with T words needs it). Raises :class:`LinuxCncError`, one
+    line, when the interpreter cannot run or crashes.
+    """
+    env = dict(os.environ)
+    env['INI_FILE_NAME'] = str(ini) if ini else '/dev/null'
+    if ini:
+        env.update({k: v for k, v in rtapi_env(Path(ini).parent).items()
+                    if k.startswith('RTAPI_')})
+    try:
+        r = subprocess.run([SYSTEM_PYTHON, str(PACKAGE_DIR / 'gcode_path.py'), str(path)],
+                           capture_output=True, text=True, timeout=timeout_s, env=env,
+                           check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise LinuxCncError(f"LinuxCNC's interpreter on {path}: {exc}") from None
+    if r.returncode != 0 or not r.stdout.strip():
+        how = (f'signal {-r.returncode}' if r.returncode < 0 else f'exit {r.returncode}')
+        raise LinuxCncError(f"LinuxCNC's interpreter on {path}: {how} "
+                            f"{' '.join(r.stderr.split())[-300:]}".rstrip())
+    return json.loads(r.stdout.strip().splitlines()[-1])

@@ -130,6 +130,7 @@ class BridgeLog:
     lifts: int = 0
     fault_holds: list[dict[str, Any]] = field(default_factory=list)
     moved_before_ready: int = 0    # contours whose pierce point XY left before ready_to_move
+    moved_during_lift: int = 0     # lifts (no leapfrog) during which XY left the contour's end
     linuxcnc_samples: int = 0
     linuxcnc_max_gap_ms: float = 0.0
     safe_samples: int = 0          # samples with the component on its safe outputs
@@ -141,6 +142,7 @@ class BridgeLog:
                 'finished': self.finished, 'contours': self.contours, 'holds': self.holds,
                 'leapfrogs': self.leapfrogs, 'lifts': self.lifts,
                 'fault_holds': self.fault_holds, 'moved_before_ready': self.moved_before_ready,
+                'moved_during_lift': self.moved_during_lift,
                 'linuxcnc_samples': self.linuxcnc_samples,
                 'linuxcnc_max_gap_ms': round(self.linuxcnc_max_gap_ms, 2),
                 'safe_samples': self.safe_samples}
@@ -188,6 +190,8 @@ class Sequencer:
         self.rapid_started = False
         self.holding = False       # a follow/hold(True) is in force
         self.lift_hold = False     # the feed held for a lift (no leapfrog)
+        self.lift_xy = (math.nan, math.nan)  # where XY stood at the M5 of that lift
+        self.moved_lift_mm = 0.0
         self.end_t = -1.0          # when the job ended (finished / aborted)
         self.ended_sent = False    # the end's commands sent
         self.fault_t = -1.0        # when the FAULT was first seen
@@ -222,18 +226,35 @@ class Sequencer:
         """Abort the job: a follow command was refused (its answer came later)."""
         self.abort(f'{name} refused: {message}', now_s)
 
-    def linuxcnc_gone(self, why: str, now_s: float) -> list[tuple[str, dict[str, Any]]]:
-        """LinuxCNC stopped talking (socket closed, silent): abort and lift; return commands."""
-        cmds: list[tuple[str, dict[str, Any]]] = []
-        if self.phase not in ('done', 'aborted'):
-            self.abort(f'LinuxCNC gone: {why}', now_s, pause=False)
-            cmds.append(self._lift())
-            self.lift_after_abort = True
-        return cmds
+    def linuxcnc_gone(self, why: str, now_s: float, answers: dict[str, Any] | None = None
+                      ) -> list[tuple[str, dict[str, Any]]]:
+        """LinuxCNC stopped talking (socket closed, silent): abort, lift; return the commands."""
+        if self.phase in ('done', 'aborted'):
+            return []
+        self.abort(f'LinuxCNC gone: {why}', now_s, pause=False)
+        return self._up_and_stop(answers)
 
-    def _lift(self) -> tuple[str, dict[str, Any]]:
+    def _up_and_stop(self, answers: dict[str, Any] | None) -> list[tuple[str, dict[str, Any]]]:
+        """Return the commands of a CNC gone: the head up, the follow stopped.
+
+        Following: lift the head (then stop, :meth:`end_step`). Approaching or piercing (a lift
+        is refused there): stop the follow at once; the head stays where the approach has
+        brought it, above the sheet, and nothing moves it any more.
+        """
+        state = int((answers or {}).get('state', IDLE))
+        if state in (PID, LADRC):
+            self.lift_after_abort = True
+            return [self._lift(by_distance=True)]  # (a rapid's reading may be a hole's)
+        if state == FAULT:
+            return []  # the controller's own (a retract)
+        self.stop_sent = True
+        return [('stop_follow', {})]
+
+    def _lift(self, by_distance: bool = False) -> tuple[str, dict[str, Any]]:
+        """Return a lift to ``lift_mm`` above the sheet (the reading), or by it (no reading)."""
         self.log.lifts += 1
-        return ('lift', {'mode': 0, 'value_mm': self.p.lift_mm, 'velocity_mm_s': 0.0})
+        return ('lift', {'mode': 1 if by_distance else 0, 'value_mm': self.p.lift_mm,
+                         'velocity_mm_s': 0.0})
 
     def _waited(self, what: str, now_s: float) -> None:
         if self.t_wait >= 0:
@@ -293,8 +314,7 @@ class Sequencer:
         elif active and (s.flag(p.F_ESTOP) or not s.flag(p.F_MACHINE_ON)):
             self.abort('LinuxCNC estop' if s.flag(p.F_ESTOP) else 'LinuxCNC machine off',
                        now_s, pause=False)
-            cmds.append(self._lift())
-            self.lift_after_abort = True
+            cmds += self._up_and_stop(answers)
         # how the FAULT's feed hold went: LinuxCNC's own state shows it
         fl = self.fault_logged
         if fl is not None:
@@ -354,10 +374,16 @@ class Sequencer:
                     cmds.append(self._lift())
                     self.lift_hold = True
                     self.t_wait = now_s
+                    self.lift_xy, self.moved_lift_mm = (s.x_mm, s.y_mm), 0.0
             if self.lift_hold:
+                self.moved_lift_mm = max(self.moved_lift_mm, math.hypot(
+                    s.x_mm - self.lift_xy[0], s.y_mm - self.lift_xy[1]))
                 if a.get('in_position') and sub == SUB_LIFT:
                     self.lift_hold = False
                     self._waited('lift in position', now_s)
+                    log.contours[-1]['moved_during_lift_mm'] = round(self.moved_lift_mm, 4)
+                    if self.moved_lift_mm > MOVED_MM:
+                        log.moved_during_lift += 1
                 elif now_s - self.t_wait > self.p.wait_timeout_s:
                     self.abort(f'waited {self.p.wait_timeout_s:g} s for the lift', now_s)
             if self.phase in ('pierce', 'cut') and log.contours and not log.contours[-1]['line']:

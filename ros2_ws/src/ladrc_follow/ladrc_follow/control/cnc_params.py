@@ -36,6 +36,12 @@ class CncParams(Section):
                                    '(the footprint still sees it)', ge=0.0, le=100.0)
     stale_timeout_s: float = param(0.02, 's', 'a CNC motion sample older than this, once one '
                                    'came, holds the height', gt=0.0, le=1.0)
+    stale_lift_s: float = param(0.5, 's', 'a CNC silent this long while following (its last '
+                                'motion sample this old): the CNC is gone, the head is lifted '
+                                'by stale_lift_mm and held there; 0 = off (hold only)',
+                                ge=0.0, le=60.0)
+    stale_lift_mm: float = param(5.0, 'mm', 'the lift when the CNC has gone silent '
+                                 '(stale_lift_s)', gt=0.0, le=50.0)
     moving_feed_mm_s: float = param(0.5, 'mm/s', 'XY counts as moving above this actual path '
                                     'speed (a CNC that does not wait)', gt=0.0, le=100.0)
     lift_velocity_mm_s: float = param(50.0, 'mm/s', 'lift speed when a lift gives none '
@@ -68,7 +74,14 @@ class CncParams(Section):
 def cnc_problems(p) -> list[str]:
     """Cross checks of the ``cnc`` section against the rest of the set (params.CROSS_CHECKS)."""
     c = p.cnc
+    out = []
     if c.corner_unlock_ratio < c.corner_lock_ratio:
-        return [f'cnc.corner_unlock_ratio ({c.corner_unlock_ratio:g}) below '
-                f'cnc.corner_lock_ratio ({c.corner_lock_ratio:g}): the lock would chatter']
-    return []
+        out.append(f'cnc.corner_unlock_ratio ({c.corner_unlock_ratio:g}) below '
+                   f'cnc.corner_lock_ratio ({c.corner_lock_ratio:g}): the lock would chatter')
+    if 0.0 < c.stale_lift_s < c.stale_timeout_s:
+        out.append(f'cnc.stale_lift_s ({c.stale_lift_s:g}) below cnc.stale_timeout_s '
+                   f'({c.stale_timeout_s:g}): the head would lift before it is held')
+    if c.stale_lift_mm > c.max_lift_mm:
+        out.append(f'cnc.stale_lift_mm ({c.stale_lift_mm:g}) above cnc.max_lift_mm '
+                   f'({c.max_lift_mm:g})')
+    return out

@@ -197,6 +197,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
             view.see(t, sample, *station.xy)
         x, y = view.x, view.y
         for k in view.cut_done:  # a contour cut to its end: its region drops (or tips)
+            if k >= len(program.contours):
+                continue  # a G-code job's contour: the world has no part of it to drop
             c = program.contours[k]
             if c.part in tips and not c.inner:
                 sheet.tip(c.region, job.tip_rise_mm)

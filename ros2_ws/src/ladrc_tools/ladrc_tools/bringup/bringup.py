@@ -117,7 +117,7 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
 
 
 def emulated_drive_eds() -> str:
-    """The EDS of the emulated CiA 402 drive (ladrc_sim), which its driver reads too."""
+    """Return the EDS of the emulated CiA 402 drive (ladrc_sim), which its driver reads too."""
     from ladrc_sim.cia402.can_drive import default_eds
 
     return str(default_eds())
@@ -401,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
                     'python-can-remote server, or a socketcan channel such as can0); default: '
                     'a bus started here on 127.0.0.1 and stopped at the end')
     ap.add_argument('--period-ms', type=float, default=None,
-                    help='with --drive cia402: the SYNC period = the controller\'s h_s [0.5 in '
+                    help="with --drive cia402: the SYNC period = the controller's h_s [0.5 in "
                     'lock step; 1 free-running: the test bus does not hold 0.5 ms free-running '
                     'on 2 cores (docs/real-axis.md)]')
     ap.add_argument('--params', default=None, help='controller parameter file [shipped default]')

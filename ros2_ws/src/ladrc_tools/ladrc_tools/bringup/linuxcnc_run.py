@@ -336,7 +336,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
             if fault and not fault_done and t_run is not None \
                     and time.monotonic() - t_run >= fault[1]:
                 fault_done = True
-                fault_report = inject(fault[0], lc, up)
+                fault_report = {'t_wall_s': time.time(), **inject(fault[0], lc, up)}
                 fault_report['at_s'] = round(time.monotonic() - t_run, 3)
                 if fault[0] == 'kill-bridge':
                     end_at = time.monotonic() + FAULT_SETTLE_S

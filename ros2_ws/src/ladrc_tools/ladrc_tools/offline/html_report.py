@@ -21,6 +21,7 @@ from __future__ import annotations
 import base64
 from importlib import resources
 import json
+import math
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -146,7 +147,7 @@ def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> Ite
         'summary': _summary(report),
         'n': data.n, 'factor': data.factor, 'auxLevel': data.aux_level,
         'pointsPerPx': POINTS_PER_PX, 'topBuckets': 1024,
-        'hS': report.get('h_s'), 'vMax': report.get('v_max_mm_s'),
+        'hS': _finite(report.get('h_s')), 'vMax': _finite(report.get('v_max_mm_s')),
         'states': states, 'time': time, 'curves': curves, 'plots': plots, 'streams': table,
     }
     meta_json = json.dumps(meta, allow_nan=False).replace('</', '<\\/')
@@ -176,6 +177,11 @@ def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> Ite
     yield from _base64(streams)
     yield from ['</script>\n',
                 '<script>\n', asset('html_report.js'), '\n</script>\n</body>\n</html>\n']
+
+
+def _finite(v: Any) -> float | None:
+    """Return ``v`` as a float when it is a finite number, else None (strict JSON)."""
+    return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
 
 
 def _esc(text: str) -> str:

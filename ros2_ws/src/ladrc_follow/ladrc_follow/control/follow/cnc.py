@@ -18,7 +18,8 @@ change of the target. The anchors (plasmac ``plasmac.comp``, Beckhoff TF5200/TF5
 * edge ahead: hold from ``edge_ahead_hold_mm`` before the outline or a kerf the CNC reports
   until ``edge_release_mm`` of path after it (a partly covered sensor reads too wide);
 * a stale CNC (no motion sample for ``stale_timeout_s`` once one came) holds: nothing it
-  reported can be judged any more;
+  reported can be judged any more; silent for ``stale_lift_s`` while following, the CNC is
+  gone: the head is lifted by ``stale_lift_mm`` (a planned move up) and held there;
 * pierce: each stage height approached, in position, dwelled at; then the cut gap, in position,
   and the THC delay (held) before the follow closes in (plasmac pierce delay / THC delay);
 * a CNC that moves XY before the pierce is complete is asked to hold its feed, with the reason;
@@ -80,6 +81,7 @@ class CncPartner:
         self._inpos = 0            # ticks within tolerance of the target
         self._inpos_target = math.nan
         self.feed_override = 1.0   # fraction of the programmed feed asked for (adaptive feed)
+        self._stale_lifted = False  # lifted for the CNC's present silence (a sample resets it)
 
     def configure(self, p, h_s: float) -> None:
         """Take the ``cnc`` section and the in-position rule (pid.followed_*) of a set."""
@@ -186,6 +188,7 @@ class CncPartner:
         if cnc is None or cnc.seq == 0:
             return
         self.cnc = cnc
+        self._stale_lifted = False
         key = (cnc.segment, cnc.contour)
         changed = self._segment_key is not None and key != self._segment_key
         if self._hold_next is not None and changed:
@@ -239,6 +242,15 @@ class CncPartner:
         self.ready_to_move = settled and self._phase not in (
             _STAGE_APPROACH, _STAGE_DWELL, _CUT_APPROACH)
         return new_target
+
+    def stale_lift_due(self, t_s: float) -> bool:
+        """Return True once per silence of the CNC longer than ``stale_lift_s`` (0: never)."""
+        p = self.p
+        if (p.stale_lift_s <= 0.0 or self._stale_lifted or self.cnc.seq == 0
+                or not t_s - self.cnc.stamp_s >= p.stale_lift_s):
+            return False
+        self._stale_lifted = True
+        return True
 
     @property
     def holding(self) -> bool:

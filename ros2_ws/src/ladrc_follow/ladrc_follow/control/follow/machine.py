@@ -669,6 +669,12 @@ class FollowController:
         st = self._state
         settled = (st == PID or st == LADRC_STATE) and self._followed
         new_target = p.judge(self._tick * self._h, gap, self._target_eff, settled)
+        if (st == PID or st == LADRC_STATE) and p.stale_lift_due(self._tick * self._h):
+            # the CNC is gone (silent for cnc.stale_lift_s): the head goes up and stays there
+            p.start_lift(p.p.stale_lift_mm, 0.0, self._u)
+            p.reason = (f'CNC silent for {p.p.stale_lift_s:g} s: lifting by '
+                        f'{p.p.stale_lift_mm:g} mm')
+            return self._hold_up_only()
         if new_target == new_target:  # a pierce stage (checked against the limits at accept)
             self._set_target(new_target)
             st = self._state

@@ -1,0 +1,280 @@
+"""The project's figures, measured by the benches and written to docs/figures.md.
+
+    scripts/in-env python bench/figures.py [--quick] [--only ID,ID] [--list] [--dry-run]
+                                           [--out DIR]
+
+Each figure is one row: what it is, its value, the command that prints it, and when, at which
+commit and on which machine (cores, CPU) it was measured. The benches (``bench/*.py``) print
+their figures as the last line of JSON; this script runs them (all, those marked quick with
+``--quick``, or the ones named with ``--only``), takes the figures out of that line, and writes
+``docs/figures.json`` (the data) and ``docs/figures.md`` (the table, rendered from the data),
+keeping the rows it did not run as they were. The README's short table (between the
+``figures:begin`` and ``figures:end`` markers) is rendered from the same data. Docs that cite a
+figure link to its row (``docs/figures.md#<id>``) instead of restating it.
+
+``--quick``: the figures whose benches take seconds (a few minutes in all on this machine
+class); the full run takes hours (the fault matrix, the shift-long bags, the live benches).
+A bench that fails or prints no JSON leaves its rows as they were and is named on stderr;
+the exit code is then 1.
+
+Last line: JSON with ``figures`` (ids measured now), ``failed`` (ids whose bench failed),
+``wall_s``, ``written`` (the files).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+import datetime as dt
+import json
+import os
+from pathlib import Path
+import platform
+import subprocess
+import sys
+import time
+from typing import Any, Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / 'docs'
+DATA = DOCS / 'figures.json'
+TABLE = DOCS / 'figures.md'
+README = ROOT / 'README.md'
+
+
+def _f(x: Any, nd: int = 3) -> str:
+    """A number with ``nd`` significant digits (ints as they are)."""
+    if isinstance(x, bool) or x is None:
+        return str(x)
+    if isinstance(x, int):
+        return f'{x:,}'.replace(',', ' ')
+    return f'{x:.{nd}g}'
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One figure: its id (the row's anchor), what it is, the bench and how to read it."""
+
+    id: str
+    label: str
+    bench: str
+    args: tuple[str, ...]
+    value: Callable[[dict], str]
+    quick: bool = False
+    readme: bool = False  # in the README's short table
+
+
+FIGURES: tuple[Figure, ...] = (
+    Figure('core-step', 'full controller step (TD + ESO + Kalman + law + limits), scalar, '
+           'plain Python', 'core_step', (),
+           lambda r: f'{_f(r["scalar_step_us"])} µs; batch of 1000 sets '
+                     f'{_f(r["batch_realtime_x"]["1000"])}× real time', quick=True, readme=True),
+    Figure('headless-speed', 'headless closed loop, full controller, showcase', 'headless_speed',
+           ('--repeat', '1'),
+           lambda r: f'{_f(r["realtime_x"])}× real time, {_f(r["us_per_tick"])} µs per tick',
+           quick=True, readme=True),
+    Figure('cia402-units', "CiA 402 path vs the simulator's drive: error RMS, each integer "
+           'unit', 'cia402_units', (),
+           lambda r: '; '.join(
+               f'{s}: all {100 * v["all"]["relative"]:+.2f} % (analog counts '
+               f'{100 * v["gap_counts"]["relative"]:+.2f} %, command units '
+               f'{100 * v["velocity_units"]["relative"]:+.3f} %, power-up '
+               f'{100 * v["power_up"]["relative"]:+.2f} %)' for s, v in r['scenarios'].items()),
+           quick=True),
+    Figure('paper-eso-compensator', 'paper §5.1, max |x2 error| LESO → LESO+D away from the '
+           'kinks of |cos t|', 'paper_eso_compensator', (),
+           lambda r: f'{_f(r["leso_x2_err_away"])} → {_f(r["leso_d_x2_err_away"])} '
+                     f'(paper {_f(r.get("paper_leso_x2_err", float("nan")))} → '
+                     f'{_f(r.get("paper_leso_d_x2_err", float("nan")))})', quick=True),
+    Figure('paper-eso-frequency', 'paper §4 (Fig. 2), Ω where the compensation is lost',
+           'paper_eso_frequency', (),
+           lambda r: f'{_f(r["omega_0p1db_i3"], 4)} / {_f(r["omega_0p1db_i4"], 4)} '
+                     f'(i = 3 / 4; paper {_f(r["omega_lost_paper"])})', quick=True),
+    Figure('job-speed', 'headless cutting jobs', 'job_speed', ('--repeat', '1'),
+           lambda r: f'{_f(r["realtime_x_min"])}× real time at least (target '
+                     f'{_f(r["target_x"])}×)', quick=True),
+    Figure('seed-experiments', "the notes' experiments as the notes ran them",
+           'seed_experiments', ('--quick',),
+           lambda r: f'5 Hz sine on the target: TD {_f(r["sine5_td_ratio"])} (notes 0.72); '
+                     f'thin sheet: LADRC {_f(r["thin_sheet_ladrc_range_mm"])} mm range vs PID '
+                     f'{_f(r["thin_sheet_pid_range_mm"])} mm', quick=True, readme=True),
+    Figure('sweep-speed', 'batch closed loop, 1000 parameter sets × the batchable library',
+           'sweep_speed', (),
+           lambda r: f'{_f(r["wall_s"])} s wall, {_f(r["aggregate_realtime_x"])}× real time '
+                     'aggregate'),
+    Figure('bag-read', 'reading a bag into columns (every field, strings included)',
+           'bag_read', ('--seconds', '120'),
+           lambda r: f'{_f(r["indexed_msgs_per_s"])} messages/s, {_f(r["speedup"])}× rosbags '
+                     'message by message', quick=True),
+    Figure('edge-fit', "the edge verification's fit in the tick, SCHED_FIFO, 2 busy loops",
+           'edge_fit_timing', (),
+           lambda r: f'median {_f(r["median_ms"])} ms, max {_f(r["max_ms"])} ms'),
+    Figure('loop-timing', 'live loop, sim + controller + recorder (60 s, deadline loop)',
+           'loop_timing', ('--duration', '60', '--loops', 'deadline'),
+           lambda r: f'{_f(r["rate_hz"])} ticks/s, period p99 {_f(r["period_p99_us"])} µs, '
+                     f'latency p99 {_f(r["latency_p99_ms"])} ms', readme=True),
+    Figure('cia402-timing', 'CiA 402 path free-running on the test bus, 1 ms', 'cia402_timing',
+           ('--duration', '30', '--periods-ms', '1'),
+           lambda r: f'{100 * r["held"]:.1f} % of SYNC periods held, SYNC jitter p99 '
+                     f'{_f(r["sync_jitter_p99_us"])} µs, sensor → command p99 '
+                     f'{_f(r["latency_p99_ms"])} ms, {r["contacts"]} contacts, bus load '
+                     f'{100 * r["bus_load_1mbit"]:.0f} % at 1 Mbit/s'),
+    Figure('fault-matrix', 'fault-injection matrix (headless, live, CiA 402)', 'fault_matrix',
+           (),
+           lambda r: f'{r["contacts"]} contacts, {r["node_crashes"]} node crashes, '
+                     f'{r["nonfinite_commands"]} non-finite commands, '
+                     f'{r["invalid_params_accepted"]} of {r["invalid_params_tried"]} invalid '
+                     f'parameters accepted, axis at rest {_f(r["kill_stop_ms"])} ms after a '
+                     f'controller SIGKILL ({_f(r.get("canopen_kill_stop_ms"))} ms after a '
+                     'CiA 402 driver SIGKILL)', readme=True),
+    Figure('bag-tools-hour', 'tools on a 1-hour bag, each in its own process', 'bag_scale',
+           ('--part', 'tools'),
+           lambda r: f'report {_f(r["report_realtime_x"])}×, replay '
+                     f'{_f(r["replay_realtime_x"])}× real time; peak RSS '
+                     f'{_f(r["tools_peak_rss_mib"])} MiB', readme=True),
+)
+BY_ID = {f.id: f for f in FIGURES}
+
+
+def machine() -> str:
+    """``2 cores, <CPU model>``."""
+    model = platform.processor() or ''
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                model = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f'{os.cpu_count()} cores, {model or "unknown CPU"}'
+
+
+def commit() -> str:
+    """The checkout's commit (short), ``+`` when the tree has changes."""
+    try:
+        head = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT, check=True,
+                              capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(['git', 'status', '--porcelain', '--untracked-files=no'],
+                               cwd=ROOT, capture_output=True, text=True).stdout.strip()
+        return head + ('+' if dirty else '')
+    except (OSError, subprocess.CalledProcessError):
+        return 'unknown'
+
+
+def run_bench(bench: str, args: tuple[str, ...]) -> dict:
+    """Run ``bench/BENCH.py ARGS``; return its last line of JSON (RuntimeError if none)."""
+    proc = subprocess.run([sys.executable, str(ROOT / 'bench' / f'{bench}.py'), *args],
+                          cwd=ROOT, capture_output=True, text=True, check=False)
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode != 0 or not lines:
+        tail = (proc.stderr.strip().splitlines() or ['no output'])[-1]
+        raise RuntimeError(f'{bench} exited {proc.returncode}: {tail}')
+    return json.loads(lines[-1])
+
+
+def command(f: Figure) -> str:
+    """The command that prints the figure."""
+    return ' '.join(('scripts/in-env python', f'bench/{f.bench}.py', *f.args))
+
+
+def render(data: dict) -> str:
+    """docs/figures.md from the data."""
+    out = ['# Figures', '',
+           'Generated by `scripts/in-env python bench/figures.py` (`--quick`: the figures of a '
+           'few seconds each; the full run takes hours). One row per figure: its value, the '
+           'command that prints it, and when, at which commit and on which machine it was '
+           'measured. Do not edit by hand: run the bench.', '',
+           '| figure | value | command | measured |', '| --- | --- | --- | --- |']
+    for f in FIGURES:
+        row = data.get(f.id)
+        if row is None:
+            value, when = 'not measured yet', ''
+        else:
+            value = row['value']
+            when = f'{row["date"]}, {row["commit"]}, {row["machine"]}'
+        out.append(f'| <a id="{f.id}"></a>{f.label} | {value} | `{command(f)}` | {when} |')
+    return '\n'.join(out) + '\n'
+
+
+def render_readme_table(data: dict) -> str:
+    """The README's short table (values and links, no dates: those are in docs/figures.md)."""
+    rows = ['| figure | value |', '| --- | --- |']
+    for f in FIGURES:
+        if f.readme:
+            value = data.get(f.id, {}).get('value', 'not measured yet')
+            rows.append(f'| [{f.label}](docs/figures.md#{f.id}) | {value} |')
+    return '\n'.join(rows)
+
+
+def update_readme(data: dict) -> bool:
+    """Replace the README's table between its markers; False when it has none."""
+    begin, end = '<!-- figures:begin -->', '<!-- figures:end -->'
+    text = README.read_text(encoding='utf-8')
+    if begin not in text or end not in text:
+        return False
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    README.write_text(f'{head}{begin}\n{render_readme_table(data)}\n{end}{tail}',
+                      encoding='utf-8')
+    return True
+
+
+def main() -> int:
+    """Run the benches of the chosen figures and write the tables."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--quick', action='store_true', help='only the figures of seconds each')
+    ap.add_argument('--only', default='', help='comma-separated figure ids')
+    ap.add_argument('--list', action='store_true', help='list the figures and exit')
+    ap.add_argument('--out', default=str(DOCS),
+                    help='folder of figures.json and figures.md [docs]; another folder leaves '
+                    'the README as it is')
+    ap.add_argument('--dry-run', action='store_true',
+                    help='render the tables from docs/figures.json without running benches')
+    a = ap.parse_args()
+    if a.list:
+        for f in FIGURES:
+            print(f'{f.id:24} {"quick " if f.quick else "      "}{command(f)}')
+        return 0
+    ids = [i for i in a.only.split(',') if i]
+    unknown = [i for i in ids if i not in BY_ID]
+    if unknown:
+        print(f'figures.py: unknown figure ids {unknown}; --list shows them', file=sys.stderr)
+        return 2
+    chosen = ([BY_ID[i] for i in ids] if ids else
+              [f for f in FIGURES if f.quick] if a.quick else list(FIGURES))
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    data_file, table_file = out / DATA.name, out / TABLE.name
+    data = json.loads(data_file.read_text(encoding='utf-8')) if data_file.is_file() else {}
+    t0 = time.monotonic()
+    done, failed = [], []
+    results: dict[tuple, dict] = {}
+    stamp = dt.date.today().isoformat()
+    where, rev = machine(), commit()
+    for f in [] if a.dry_run else chosen:
+        key = (f.bench, f.args)
+        try:
+            if key not in results:
+                print(f'figures: {command(f)}', file=sys.stderr, flush=True)
+                results[key] = run_bench(f.bench, f.args)
+            value = f.value(results[key])
+        except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+            print(f'figures: {f.id}: {exc}', file=sys.stderr, flush=True)
+            failed.append(f.id)
+            continue
+        data[f.id] = {'value': value, 'date': stamp, 'commit': rev, 'machine': where}
+        done.append(f.id)
+    tmp = data_file.with_suffix('.json.part')
+    tmp.write_text(json.dumps(data, indent=1, ensure_ascii=False) + '\n', encoding='utf-8')
+    tmp.replace(data_file)
+    table_file.write_text(render(data), encoding='utf-8')
+    written = [str(data_file), str(table_file)]
+    if out.resolve() == DOCS.resolve() and update_readme(data):
+        written.append(str(README))
+    print(json.dumps({'figures': done, 'failed': failed,
+                      'wall_s': round(time.monotonic() - t0, 1), 'written': written}))
+    return 1 if failed else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

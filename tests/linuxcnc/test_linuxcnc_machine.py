@@ -1,0 +1,215 @@
+"""The shipped LinuxCNC machine and the bridge's HAL component, without ROS (issue 42, 1-2).
+
+LinuxCNC runs headless on the shipped XY configuration (``ladrc_linuxcnc.machine``: one at a
+time, ended by PID, its shared memory cleaned); this test is the component's client, over the
+real socket and protocol, in the bridge node's place:
+
+* motion waits for ``spindle.0.at-speed`` (the bridge's "ready to move") before the first feed
+  move after M3: XY stands still at the pierce point, however long the height controller takes;
+* ``motion.feed-hold`` (the bridge's feed hold) stops a cut and releases it;
+* the client going silent: the component's safe outputs (feed hold, no at-speed, beam gate
+  closed) and the program paused (``halui.program.pause``), as when the bridge dies;
+* the beam gate follows M3, the bridge's beam and M62 P3 in the servo thread;
+* LinuxCNC runs a G-code program no one here wrote (LinuxCNC's example ``plasmatest.ngc``) as
+  it is, to its end;
+* the stop leaves no process of the run, no lock file and no shared memory.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import socket
+import subprocess
+import time
+
+from ladrc_linuxcnc import protocol as p
+from ladrc_linuxcnc.machine import (
+    LINUXCNC_LOCK,
+    LinuxCnc,
+    RunSettings,
+    render_run_config,
+    run_processes,
+)
+from linuxcnc_runs import DATA
+import pytest
+from system import require
+
+PROGRAM = """(two cuts with a hold and a micro-joint)
+G21 G90 G64 P0.05
+G0 X50 Y20
+M3 $0 S1
+G1 X100 F3000
+M62 P2
+G1 Y40
+M63 P2
+M62 P3
+G1 X80
+M63 P3
+G1 X60
+M5 $0
+G0 X150 Y60
+M3 $0 S1
+G1 X200 F3000
+M5 $0
+M2
+"""
+
+
+class Client:
+    """The bridge node's side of the socket, driven by the test."""
+
+    def __init__(self, path: str) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(path)
+        self.sock.setblocking(False)
+        self.reader = p.FrameReader()
+        self.samples: list[tuple[float, p.LcncSample]] = []
+        self.hello: dict = {}
+        self.flags = p.O_HEIGHT_READY
+        self.seq = 0
+        self.silent = False
+
+    def run_until(self, condition, timeout_s: float, what: str) -> None:
+        """Exchange frames until ``condition(last sample)``; fail after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            try:
+                data = self.sock.recv(1 << 16)
+                assert data, 'the component closed the socket'
+                self.reader.feed(data)
+            except BlockingIOError:
+                pass
+            for kind, value in self.reader.frames():
+                if kind == p.SAMPLE:
+                    self.samples.append((time.monotonic(), value))
+                elif kind == p.HELLO:
+                    self.hello = value
+            if not self.silent:
+                self.seq += 1
+                self.sock.sendall(p.HalOutputs(self.seq, 1.0, self.flags, 0).pack())
+            if self.samples and condition(self.samples[-1][1]):
+                return
+            time.sleep(0.001)
+        last = self.samples[-1][1].as_dict() if self.samples else None
+        pytest.fail(f'{what}: not within {timeout_s:g} s; last sample {last}')
+
+    def since(self, t: float) -> list[p.LcncSample]:
+        return [s for ts, s in self.samples if ts >= t]
+
+
+@pytest.fixture()
+def linuxcnc(tmp_path):
+    require('linuxcnc')
+    prog = tmp_path / 'two_cuts.ngc'
+    prog.write_text(PROGRAM, encoding='utf-8')
+    ini = render_run_config(tmp_path / 'run', RunSettings(program=prog, home_xy_mm=(10.0, 10.0),
+                                                          rapid_mm_s=300.0, accel_mm_s2=2000.0))
+    lc = LinuxCnc(ini)
+    lc.start(timeout_s=180.0, lock_wait_s=1800.0)
+    try:
+        yield lc
+    finally:
+        session = lc.proc.pid
+        stopped = lc.stop()
+        print(f'stop: {stopped}')
+        assert not run_processes(session, str(lc.ini)), 'a process of the run is left'
+        assert not LINUXCNC_LOCK.exists()
+        keys = subprocess.run(['ipcs', '-m'], capture_output=True, text=True).stdout
+        assert '0x48414c32' not in keys, 'HAL shared memory left'
+
+
+def test_linuxcnc_waits_holds_and_pauses_for_the_height_controller(linuxcnc):
+    c = Client(linuxcnc.socket_path)
+    c.run_until(lambda s: s.flag(p.F_HOMED), 30.0, 'homed')
+    assert c.hello['max_velocity_mm_s'] == 300.0 and c.hello['python'].startswith('3.')
+    # ready: the display starts the program; M3 comes once the G0 has ended
+    c.run_until(lambda s: s.flag(p.F_SPINDLE_ON), 60.0, 'M3 after the first rapid')
+    t_m3 = time.monotonic()
+    at = c.samples[-1][1]
+    assert (at.x_mm, at.y_mm) == pytest.approx((50.0, 20.0), abs=1e-6)
+    # no at-speed for 1.5 s: LinuxCNC must not start the cut
+    c.run_until(lambda s: time.monotonic() - t_m3 > 1.5, 10.0, 'waiting')
+    still = c.since(t_m3)
+    assert len(still) > 100
+    assert all(abs(s.x_mm - 50.0) < 1e-6 and abs(s.y_mm - 20.0) < 1e-6 for s in still)
+    assert all(s.current_vel_mm_s == 0.0 for s in still)
+    assert not any(s.flag(p.F_BEAM_GATE) for s in still)  # beam not opened by the bridge
+    # ready to move and the beam: the cut starts
+    c.flags |= p.O_AT_SPEED | p.O_BEAM
+    t_ready = time.monotonic()
+    c.run_until(lambda s: s.x_mm > 51.0, 10.0, 'the cut starting after at-speed')
+    moving = c.since(t_ready)
+    assert moving[-1].motion_type == p.MOTION_FEED and moving[-1].flag(p.F_BEAM_GATE)
+    # M62 P2 (synchronised) shows as the hold on the second segment
+    c.run_until(lambda s: s.flag(p.F_THC_OFF), 10.0, 'M62 P2')
+    assert c.samples[-1][1].x_mm == pytest.approx(100.0, abs=0.1)
+    # M62 P3: the beam gate closes in the servo thread while the bridge's beam stays on
+    c.run_until(lambda s: s.flag(p.F_TORCH_OFF), 10.0, 'M62 P3')
+    c.run_until(lambda s: True, 1.0, 'a sample')
+    assert not c.samples[-1][1].flag(p.F_BEAM_GATE)
+    # feed hold stops the cut (within its deceleration) and keeps it stopped
+    c.flags |= p.O_FEED_HOLD
+    t_hold = time.monotonic()
+    c.run_until(lambda s: s.flag(p.F_FEED_HOLD_IN) and time.monotonic() - t_hold > 0.5, 5.0,
+                'the feed hold on for 0.5 s')
+    x_held = c.samples[-1][1].x_mm
+    t_still = time.monotonic()
+    c.run_until(lambda s: time.monotonic() - t_still > 1.0, 5.0, 'held')
+    held = c.since(t_still)
+    assert all(abs(s.x_mm - x_held) < 1e-6 and s.current_vel_mm_s == 0.0 for s in held)
+    c.flags &= ~p.O_FEED_HOLD
+    c.run_until(lambda s: abs(s.x_mm - x_held) > 0.5, 5.0, 'moving again after the release')
+    # the bridge gone silent: safe outputs, the program paused
+    c.silent = True
+    t_silent = time.monotonic()
+    c.run_until(lambda s: s.flag(p.F_LINK_SAFE) and s.flag(p.F_FEED_HOLD_IN)
+                and s.flag(p.F_PAUSED), 10.0, 'safe outputs and a pause without the bridge')
+    last = c.samples[-1][1]
+    assert not last.flag(p.F_AT_SPEED_IN) and not last.flag(p.F_BEAM_GATE)
+    print(f'safe and paused {time.monotonic() - t_silent:.3f} s after the bridge went silent')
+    assert any(e['event'] == 'paused' for e in linuxcnc.events())
+
+
+def test_linuxcnc_runs_a_program_no_one_here_wrote(tmp_path):
+    """LinuxCNC's example plasmatest.ngc (a 2008 plasma CAM's: M06 T1, M03/M05, arcs), as it is.
+
+    Run by LinuxCNC to its end with this test as a bridge that answers at once (the height
+    controller's part is the bring-up's: bench/linuxcnc_jobs.py); at three times its feed
+    (LinuxCNC's feed override, as an operator turns it: the program is not changed) to keep
+    the test short. Its T word needs the running LinuxCNC's tool table.
+    """
+    require('linuxcnc')
+    assert Path(DATA / 'plasmatest.LICENSE').read_text().count('GPL-2.0-or-later') == 1
+    ini = render_run_config(tmp_path / 'run', RunSettings(
+        program=DATA / 'plasmatest.ngc', home_xy_mm=(0.0, 0.0), rapid_mm_s=1000.0,
+        accel_mm_s2=10000.0, extra={('DISPLAY', 'MAX_FEED_OVERRIDE'): 3.0}))
+    lc = LinuxCnc(ini)
+    lc.start(timeout_s=180.0, lock_wait_s=1800.0)
+    try:
+        for args in (('halui.feed-override.scale', '0.01'), ('halui.feed-override.counts', '300'),
+                     ('halui.feed-override.direct-value', '1'),
+                     ('halui.feed-override.count-enable', '1')):
+            r = lc.halcmd('setp', *args)
+            assert r.returncode == 0, r.stderr
+        c = Client(lc.socket_path)
+        starts = [0]
+
+        def answer(s: p.LcncSample) -> bool:
+            spindle = s.flag(p.F_SPINDLE_ON)
+            if spindle and not c.flags & p.O_AT_SPEED:
+                starts[0] += 1
+            c.flags = p.O_HEIGHT_READY | ((p.O_AT_SPEED | p.O_BEAM) if spindle else 0)
+            return starts[0] > 0 and s.flag(p.F_IDLE) and not s.flag(p.F_RUNNING)
+
+        c.run_until(answer, 300.0, 'plasmatest.ngc to its end')
+        lc.wait_event('end', 30.0)
+        events = lc.events()
+        assert starts[0] == 15
+        assert not [e for e in events if e['event'] in ('error', 'error_channel')], events
+        assert max(s.feed_override for _, s in c.samples) == pytest.approx(3.0)
+        end = c.samples[-1][1]
+        assert (end.x_mm, end.y_mm) == pytest.approx((560.5953, 159.5438), abs=0.05)  # N4010
+        filt = next(e for e in events if e['event'] == 'filter')
+        assert filt['log'] == ['ladrc z filter: 0 Z word(s) commented out on 0 line(s) of 404']
+    finally:
+        lc.stop()

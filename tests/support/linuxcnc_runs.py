@@ -1,0 +1,93 @@
+"""Helpers of the LinuxCNC tests (tests/linuxcnc): a small job, a bring-up run, its verdict.
+
+``bringup --cnc linuxcnc`` runs free (LinuxCNC keeps its own clock): on a loaded 2-core
+machine a stall of a loop process can still pass a timing guard of the simulation (the sim
+drive's watchdog, the controller's stale-input limit, its stamp tolerance; the allowance
+widens them, docs/linuxcnc.md "Time"). Such a run ends early, safely: the controller faults,
+LinuxCNC holds its feed and pauses. :func:`timing_abort` recognises it, so that a test can
+check the safety of every run and ask for the job's end from a run that no guard stopped
+(:data:`ATTEMPTS` at most), saying how many it took.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / 'tests' / 'data' / 'linuxcnc'
+ATTEMPTS = 3
+TIMING_REASONS = ('stale input', 'stale encoder', 'stale gap', 'position not finite',
+                  'gap not finite', 'drive fault reported by the drive',
+                  'the height controller is gone', 'no velocity command')
+"""FAULT reasons that are a guard on the simulation's timing, not a finding on the job."""
+
+SMALL_JOB = """name: lcnc_small
+description: A 60 x 40 mm part with a round and a square hole on a wavy 100 x 70 mm sheet.
+dxf: small.dxf
+sheet:
+  width_mm: 100
+  height_mm: 70
+  surface: {tilt_x: 0.0005, wave_amp_mm: 0.2, wave_length_mm: 60}
+cut: {kerf_mm: 0.2, lead_in_mm: 2.0}
+cnc: {feed_mm_s: 120, rapid_mm_s: 500, accel_mm_s2: 2000, cut_gap_mm: 1.0,
+      pierce_heights_mm: [3.0, 2.0], pierce_dwell_s: [0.05, 0.05], thc_delay_s: 0.05,
+      lift_mm: 6.0, leapfrog: true}
+sensor: {noise_std_mm: 0.003, quant_mm: 0.001}
+start_xy: [5.0, 5.0]
+seed: 7
+"""
+
+
+def small_job(folder: Path) -> Path:
+    """Write a 6 s job (three contours: a round and a square hole, the outline); its file."""
+    import ezdxf
+
+    doc = ezdxf.new('R2010')
+    doc.header['$INSUNITS'] = 4  # mm
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(20, 15), (80, 15), (80, 55), (20, 55)], close=True)
+    msp.add_circle((35, 35), 6)
+    msp.add_lwpolyline([(55, 28), (67, 28), (67, 42), (55, 42)], close=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    doc.saveas(str(folder / 'small.dxf'))
+    (folder / 'small.yaml').write_text(SMALL_JOB, encoding='utf-8')
+    return folder / 'small.yaml'
+
+
+def bringup_linuxcnc(job: str | Path, logs: Path, *extra: str, timeout_s: float = 600.0,
+                     env: dict | None = None) -> tuple[int, dict, str]:
+    """Run ``bringup --cnc linuxcnc --job JOB``; return (exit code, last line, stderr tail)."""
+    cmd = ['bringup', '--cnc', 'linuxcnc', '--job', str(job), '--logs', str(logs),
+           '--timeout', str(int(timeout_s)), *extra]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s + 180,
+                       env=dict(os.environ) if env is None else env, check=False)
+    lines = [ln for ln in r.stdout.strip().splitlines() if ln.startswith('{')]
+    last = json.loads(lines[-1]) if lines else {}
+    return r.returncode, last, r.stderr[-3000:]
+
+
+def timing_abort(figures: dict) -> bool:
+    """Return whether the run was stopped by a timing guard (module docstring)."""
+    why = str(figures.get('aborted', '')) + ' ' + str(
+        figures.get('linuxcnc', {}).get('bridge', {}).get('aborted', ''))
+    return any(r in why for r in TIMING_REASONS)
+
+
+def summary(figures: dict) -> str:
+    """Return the figures a test prints (one line)."""
+    keys = ('job_time_s', 'pierces', 'contacts', 'faults', 'min_gap_over_target_cutting',
+            'holds', 'finished', 'aborted')
+    b = figures.get('linuxcnc', {}).get('bridge', {})
+    return json.dumps({**{k: figures.get(k) for k in keys},
+                       'bridge': {k: b.get(k) for k in ('pierces', 'holds', 'leapfrogs',
+                                                        'moved_before_ready', 'fault_holds',
+                                                        'linuxcnc_max_gap_ms', 'aborted')}})
+
+
+def report(line: str) -> None:
+    """Print a line the test log keeps (pytest -rA / the captured output)."""
+    print(line, file=sys.stderr, flush=True)
