@@ -127,6 +127,19 @@ FIGURES: tuple[Figure, ...] = (
                      f'parameters accepted, axis at rest {_f(r["kill_stop_ms"])} ms after a '
                      f'controller SIGKILL ({_f(r.get("canopen_kill_stop_ms"))} ms after a '
                      'CiA 402 driver SIGKILL)', readme=True),
+    Figure('linuxcnc-jobs', 'shipped jobs under LinuxCNC (bringup --cnc linuxcnc), 2 runs each '
+           'with the timing allowance and with the product timing', 'linuxcnc_jobs', (),
+           lambda r: '; '.join(
+               f'{n}: to the end {e["ran_to_end"].get("allowance", [0, 0])[0]}/'
+               f'{e["ran_to_end"].get("allowance", [0, 0])[1]} '
+               f'({e["ran_to_end"].get("product", [0, 0])[0]}/'
+               f'{e["ran_to_end"].get("product", [0, 0])[1]} product), '
+               f'{sum(x.get("contacts") or 0 for rs in e["linuxcnc"].values() for x in rs)} '
+               'contacts' for n, e in r['jobs'].items())),
+    Figure('html-report-hour', 'zoomable HTML report of a 1-hour bag', 'html_report', (),
+           lambda r: f'{r["html_bytes"] / 1e6:.1f} MB, drawn in {_f(r["chromium_render_s"])} s '
+                     f'in headless Chromium; a 50 ms window shows {r["points_in_50ms_window"]}'
+                     f' of its {r["samples_in_window"]} samples', readme=True),
     Figure('bag-tools-hour', 'tools on a 1-hour bag, each in its own process', 'bag_scale',
            ('--part', 'tools'),
            lambda r: f'report {_f(r["report_realtime_x"])}×, replay '

@@ -58,7 +58,8 @@ from ladrc_sim.job.jobfile import find_job, shipped_jobs  # noqa: E402
 
 FIGURES = ('job_time_s', 'holds', 'corner_max_down_mm', 'contacts', 'faults',
            'min_gap_over_target_cutting', 'pierces', 'finished', 'aborted')
-BRIDGE = ('moved_before_ready', 'leapfrogs', 'linuxcnc_max_gap_ms', 'pierces')
+BRIDGE = ('moved_before_ready', 'leapfrogs', 'linuxcnc_max_gap_ms', 'component_max_gap_ms',
+          'sample_delay_ms_p99', 'pierces')
 BAR = 0.7
 FOREIGN = ROOT / 'tests' / 'data' / 'linuxcnc' / 'plasmatest.yaml'
 
@@ -120,9 +121,9 @@ def verdict(job: Any, runs: dict[str, list[dict]]) -> str:
 
 
 def ended(job: Any, r: dict) -> bool:
-    """Return whether a run ran to its end (the tipping job: to its declared collision)."""
-    if getattr(job, 'tip_parts', ()):
-        return 'collision' in str(r.get('aborted', ''))
+    """Return whether a run ran to its end (the tipping job: or to its declared collision)."""
+    if getattr(job, 'tip_parts', ()) and 'collision' in str(r.get('aborted', '')):
+        return True
     return bool(r.get('finished'))
 
 

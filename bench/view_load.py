@@ -55,6 +55,7 @@ def run(folder: Path, scenario: str, view_port: int | None, domain_id: int) -> d
     from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs, view_spec
     from loop_timing import figures
 
+    folder.mkdir(parents=True, exist_ok=True)
     bag = folder / 'bag'
     specs = node_specs(scenario, bag=str(bag))
     if view_port is not None:
@@ -143,7 +144,16 @@ def main() -> int:
                 folder = Path(tmp) / f'{r}_{"with" if with_view else "without"}'
                 folder.mkdir()
                 domain = args.domain_id or random.randint(1, 101)
-                fig = run(folder, scenario, args.port if with_view else None, domain)
+                for attempt in range(3):
+                    try:
+                        fig = run(folder / str(attempt), scenario,
+                                  args.port if with_view else None, domain)
+                        break
+                    except FileNotFoundError as exc:  # a rebuild of the shared workspace
+                        if attempt == 2:
+                            raise
+                        print(f'view_load: {exc}; again in 30 s', file=sys.stderr)
+                        time.sleep(30.0)
                 runs.append(fig)
                 print(f'round {r + 1}, {"with" if with_view else "without"} the view: {fig}',
                       file=sys.stderr)

@@ -1,6 +1,6 @@
 """Smoke tests of the benches (issue "benches cannot break silently").
 
-Each ``bench/*.py`` (not ``bench/repro/``) runs once, at a tiny size, as a process of its own
+Each ``bench/*.py`` runs once, at a tiny size, as a process of its own
 (``sys.executable bench/NAME.py ARGS``, the repository root as its working directory, the
 test's environment): it must exit 0, its last stdout line must be a JSON object, and that
 object must hold the keys its docstring documents, each with a value of the right kind.
@@ -163,6 +163,16 @@ def test_cia402_units() -> None:
                     'power_up', 'all'):
         check(r['scenarios']['step'][variant], {'error_rms_mm': NUM, 'relative': NUM},
               f'step/{variant}: ')
+
+
+def test_figures(tmp_path: Path) -> None:
+    """One quick figure into a scratch folder (the docs and the README stay as they are)."""
+    r = run_bench('figures', '--only', 'paper-eso-frequency', '--out', str(tmp_path),
+                  timeout_s=300)
+    check(r, {'figures': LIST, 'failed': LIST, 'wall_s': NUM, 'written': LIST})
+    assert r['figures'] == ['paper-eso-frequency'] and not r['failed']
+    table = (tmp_path / 'figures.md').read_text()
+    assert '<a id="paper-eso-frequency"></a>' in table and 'not measured yet' in table
 
 
 def test_core_step() -> None:

@@ -235,7 +235,8 @@ def test_report_metrics_match_the_runs(run_bag, tmp_path):
     out = tmp_path / 'rep'
     assert ladrc(['report', str(path), '-o', str(out), '-q']) == 0
     assert sorted(p.name for p in out.iterdir()) == [
-        'command.png', 'eso.png', 'gap.png', 'report.json', 'report.md', 'state.png']
+        'command.png', 'eso.png', 'gap.png', 'report.html', 'report.json', 'report.md',
+        'state.png']  # report.html: tests/bags/test_html_report.py
     report = json.loads((out / 'report.json').read_text())
     m = result.metrics.as_dict()
     for key in ('followed_at_s', 'error_rms_mm', 'error_max_mm', 'itae_mm_s2', 'collisions'):

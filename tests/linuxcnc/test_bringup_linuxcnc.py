@@ -36,7 +36,7 @@ BAR = 0.7
 
 @pytest.fixture(scope='module')
 def ros_env() -> dict[str, str]:
-    """The environment of the ROS tests (own ROS_DOMAIN_ID, localhost discovery)."""
+    """Return the environment of the ROS tests (own ROS_DOMAIN_ID, localhost discovery)."""
     spec = importlib.util.spec_from_file_location(
         'ros_conftest_for_linuxcnc', ROOT / 'tests' / 'ros' / 'conftest.py')
     ros = importlib.util.module_from_spec(spec)
@@ -49,7 +49,7 @@ def domain(env: dict[str, str]) -> list[str]:
 
 
 def check_safety(f: dict) -> None:
-    """What holds for every run, to its end or stopped by a guard."""
+    """Assert what holds for every run, to its end or stopped by a guard."""
     bridge = f['linuxcnc']['bridge']
     assert f['contacts'] == 0, summary(f)
     assert bridge['moved_before_ready'] == 0, bridge['contours']
@@ -84,14 +84,24 @@ def test_a_small_job_runs_to_its_end_under_linuxcnc(tmp_path, ros_env):
 
 
 def test_the_tipping_part_faults_and_linuxcnc_holds_its_feed_and_pauses(tmp_path, ros_env):
+    """The declared contact: its FAULT must hold LinuxCNC's feed and pause the program.
+
+    Free-running, the tipped part is not always met (a leapfrog's timing): such a run must be
+    a clean end; the FAULT's path is asked of a run that met it (``ATTEMPTS`` at most).
+    """
     require('linuxcnc')
     for attempt in range(1, ATTEMPTS + 1):
         rc, f, err = bringup_linuxcnc('tipping_pair', tmp_path / f'run{attempt}',
                                       *domain(ros_env), timeout_s=300.0, env=ros_env)
         report(f'attempt {attempt}: exit {rc} {summary(f)}')
         assert f, err
-        if not timing_abort(f):
+        assert f['linuxcnc']['bridge']['moved_before_ready'] == 0
+        if f.get('finished'):  # the tipped part not met: no contact, no fault
+            assert f['contacts'] == 0 and f['faults'] == 0, summary(f)
+        elif 'collision' in str(f.get('aborted')):
             break
+        else:
+            assert timing_abort(f), summary(f)
     bridge = f['linuxcnc']['bridge']
     assert 'collision' in f['aborted'] and f['faults'] >= 1, summary(f)
     assert bridge['fault_holds'] and 'collision' in bridge['fault_holds'][0]['reason']

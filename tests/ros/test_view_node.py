@@ -7,7 +7,8 @@
   --bag``): every status message received equals the bag's message of the same tick; in each
   display interval the view received whole, the min and max of the gap, target, fused gap and
   commands equal numpy's over the bag's samples of that interval; every fault reason of the
-  bag arrives (status and log); every event arrives.
+  bag arrives (status and log); every event arrives, and a client connecting after the run
+  gets them all too.
 * Beside a free-running node set: the operator's calls (start, stop, lift, a malformed one)
   reach the follow node through the view's services and come back with its answers; the
   server listens on 127.0.0.1 only (the node-socket check of docs/safety.md) and the view uses
@@ -162,6 +163,14 @@ def test_the_view_of_a_lockstep_run_equals_its_bag(tmp_path):
         status = client.messages['/follow/status']
         assert client.wait_for(lambda: status and status[-1].data['tick'] >= last_tick, 30.0), (
             last_tick, status[-1].data if status else None, nodes.log('view'))
+        # a client that comes late gets the events so far (the parameter set in force first)
+        late = FoxgloveClient(f'ws://127.0.0.1:{port}', topics=['/follow/events'])
+        try:
+            assert late.wait_for(lambda: len(late.messages.get('/follow/events', []))
+                                 >= n_events, 30.0)
+            late_kinds = [m.data['kind_name'] for m in late.messages['/follow/events']]
+        finally:
+            late.close()
     finally:
         nodes.close()
         client.close()
@@ -203,8 +212,9 @@ def test_the_view_of_a_lockstep_run_equals_its_bag(tmp_path):
     assert reasons <= {m.data['fault_reason'] for m in status}
     logged = {m.data['message'] for m in client.messages['/view/log']}
     assert {'FAULT: ' + r for r in reasons} <= logged
-    # every event arrives, not decimated
-    assert len(client.messages['/follow/events']) == n_events
+    # every event arrives, not decimated; a late client gets them too
+    kinds = [m.data['kind_name'] for m in client.messages['/follow/events']]
+    assert len(kinds) == n_events and late_kinds == kinds and kinds[0] == 'PARAMETERS', kinds
 
 
 def test_operator_calls_reach_the_follow_node_and_the_view_stays_on_loopback(tmp_path):

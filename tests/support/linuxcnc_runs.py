@@ -22,7 +22,8 @@ DATA = ROOT / 'tests' / 'data' / 'linuxcnc'
 ATTEMPTS = 3
 TIMING_REASONS = ('stale input', 'stale encoder', 'stale gap', 'position not finite',
                   'gap not finite', 'drive fault reported by the drive',
-                  'the height controller is gone', 'no velocity command')
+                  'the height controller is gone', 'no velocity command',
+                  'LinuxCNC samples', 'LinuxCNC gone: no sample for')
 """FAULT reasons that are a guard on the simulation's timing, not a finding on the job."""
 
 SMALL_JOB = """name: lcnc_small

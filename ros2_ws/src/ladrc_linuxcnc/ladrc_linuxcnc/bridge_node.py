@@ -156,6 +156,29 @@ class BridgeNode(LoopNode):
                                       f'({exc.strerror or exc})') from None
                 time.sleep(0.1)
 
+    def drain(self) -> None:
+        """Before the job: read what the component sent (its hello; the samples are dropped).
+
+        Else they would wait in the socket and be stepped through late, seconds of them.
+        """
+        if self.sock is None:
+            return
+        while True:
+            try:
+                data = self.sock.recv(1 << 16)
+            except (BlockingIOError, InterruptedError):
+                return
+            if not data:
+                raise BridgeError('the LinuxCNC bridge component closed the connection')
+            self.reader.feed(data)
+            try:
+                for kind, value in self.reader.frames():
+                    if kind == p.HELLO:
+                        self.hello = value
+                        self.seq.hello(value)
+            except ValueError as exc:
+                raise BridgeError(f'not the bridge protocol: {exc}') from None
+
     def controller_ready(self) -> bool:
         """Return whether the controller's services are up and its status has a sensor sample."""
         if not all(c.service_is_ready() for c in self.follow_clients.values()):
@@ -274,7 +297,9 @@ class BridgeNode(LoopNode):
             age_s = (now_ns - self.answer_ns) * 1e-9 if self.answers is not None else math.inf
             out = None
             for sample in samples:
-                step = seq.step(sample, self.answers, age_s, now_s)
+                # (one machine, one monotonic clock: the component's and this node's)
+                step = seq.step(sample, self.answers, age_s, now_s,
+                                (time.monotonic_ns() - sample.t_ns) * 1e-9)
                 for name, args in step.commands:
                     self.send_command(name, args)
                 out = step
@@ -369,6 +394,7 @@ def main(argv: list[str] | None = None) -> int:
                                       'and a follow/status with a sensor sample)')
                 # meanwhile LinuxCNC waits: the component keeps its safe outputs
                 try:
+                    node.drain()
                     node.send_outputs(p.HalOutputs(0, 1.0, p.O_FEED_HOLD, 0))
                 except OSError as exc:
                     raise BridgeError(f'LinuxCNC gone before the job: {exc}') from None

@@ -99,6 +99,11 @@ class BridgeParams(Section):
     link_timeout_s: float = param(0.5, 's', 'no LinuxCNC sample for this long: LinuxCNC is '
                                   'gone (the job aborted, the head lifted)', gt=0.0, le=60.0,
                                   runtime=False)
+    sample_delay_limit_s: float = param(0.1, 's', 'a LinuxCNC sample reaching the node later '
+                                        'than this after its pins were read, while the '
+                                        'program runs: the controller knows XY too late: '
+                                        'feed hold, pause, abort, the head up', gt=0.0,
+                                        le=60.0, runtime=False)
     end_timeout_s: float = param(5.0, 's', "after the job's end, publish its log at the latest "
                                  'this long after (else once the controller commands zero)',
                                  gt=0.0, le=60.0, runtime=False)
@@ -132,7 +137,9 @@ class BridgeLog:
     moved_before_ready: int = 0    # contours whose pierce point XY left before ready_to_move
     moved_during_lift: int = 0     # lifts (no leapfrog) during which XY left the contour's end
     linuxcnc_samples: int = 0
-    linuxcnc_max_gap_ms: float = 0.0
+    linuxcnc_max_gap_ms: float = 0.0  # the node's longest wait for a sample (both processes)
+    component_max_gap_ms: float = 0.0  # the component's longest gap between two polls
+    delays_ms: list[float] = field(default_factory=list)  # sample read -> step (1 in 10)
     safe_samples: int = 0          # samples with the component on its safe outputs
 
     def as_dict(self) -> dict[str, Any]:
@@ -145,7 +152,17 @@ class BridgeLog:
                 'moved_during_lift': self.moved_during_lift,
                 'linuxcnc_samples': self.linuxcnc_samples,
                 'linuxcnc_max_gap_ms': round(self.linuxcnc_max_gap_ms, 2),
+                'component_max_gap_ms': round(self.component_max_gap_ms, 2),
+                'sample_delay_ms_p99': _p99(self.delays_ms),
+                'sample_delay_ms_max': round(max(self.delays_ms, default=0.0), 2),
                 'safe_samples': self.safe_samples}
+
+
+def _p99(values: list[float]) -> float:
+    if not values:
+        return 0.0
+    v = sorted(values)
+    return round(v[min(len(v) - 1, int(0.99 * len(v)))], 2)
 
 
 @dataclass
@@ -263,10 +280,11 @@ class Sequencer:
 
     # ---- one step --------------------------------------------------------------------------
     def step(self, s: p.LcncSample, answers: dict[str, Any] | None, status_age_s: float,
-             now_s: float) -> StepOut:
+             now_s: float, delay_s: float = math.nan) -> StepOut:
         """Take one LinuxCNC sample and the controller's newest answers (None: none yet).
 
-        ``status_age_s``: how long ago that status arrived; ``now_s``: the node's clock.
+        ``status_age_s``: how long ago that status arrived; ``now_s``: the node's clock;
+        ``delay_s``: how long ago the component read this sample's pins (NaN: unknown).
         """
         cmds: list[tuple[str, dict[str, Any]]] = []
         prev = self.prev
@@ -277,6 +295,10 @@ class Sequencer:
             log.linuxcnc_max_gap_ms = max(log.linuxcnc_max_gap_ms,
                                           (now_s - self.last_sample_t) * 1e3)
         self.last_sample_t = now_s
+        if prev is not None:
+            log.component_max_gap_ms = max(log.component_max_gap_ms, (s.t_ns - prev.t_ns) * 1e-6)
+        if log.linuxcnc_samples % 10 == 0 and delay_s == delay_s:
+            log.delays_ms.append(max(0.0, delay_s * 1e3))
         if s.flag(p.F_LINK_SAFE):
             log.safe_samples += 1
         if s.flag(p.F_FEED_HOLD_IN) and self.ran and self.phase not in ('done',):
@@ -311,6 +333,11 @@ class Sequencer:
                    f'follow/status {status_age_s * 1e3:.0f} ms old (limit '
                    f'{self.p.controller_timeout_s * 1e3:g} ms)')
             self.abort(f'the height controller is gone: {why}', now_s)
+        elif (active and delay_s == delay_s
+              and delay_s > self.p.sample_delay_limit_s):
+            self.abort(f'LinuxCNC samples {delay_s * 1e3:.0f} ms late (limit '
+                       f'{self.p.sample_delay_limit_s * 1e3:g} ms): XY known too late', now_s)
+            cmds += self._up_and_stop(answers)
         elif active and (s.flag(p.F_ESTOP) or not s.flag(p.F_MACHINE_ON)):
             self.abort('LinuxCNC estop' if s.flag(p.F_ESTOP) else 'LinuxCNC machine off',
                        now_s, pause=False)

@@ -263,8 +263,14 @@ def loopback_settings(env: Mapping[str, str]) -> dict[str, str]:
 
 
 def isolated_env(domain_id: int | None = None) -> dict[str, str]:
-    """Environment of the node processes: own DDS domain, this machine only (loopback)."""
+    """Environment of the node processes: own DDS domain, this machine only (loopback).
+
+    The domain: ``domain_id``, else ``LADRC_DOMAIN_ID`` when set (a test running the README's
+    commands keeps them on its own domains), else drawn at random from 1..101.
+    """
     env = dict(os.environ)
+    if domain_id is None and env.get('LADRC_DOMAIN_ID', '').isdigit():
+        domain_id = int(env['LADRC_DOMAIN_ID'])
     env['ROS_DOMAIN_ID'] = str(domain_id if domain_id is not None else random.randint(1, 101))
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # with a profile of the user's
     env.update(loopback_settings(env))

@@ -57,16 +57,17 @@ FAULT_KINDS = ('kill-linuxcnc', 'kill-bridge', 'estop')
 SERVO_PRIORITY = 55
 """SCHED_FIFO of LinuxCNC's servo thread in these runs: above the loops (50, their middleware
 51), which would otherwise hold it up on two cores (it takes about 10 us a millisecond)."""
-COMPONENT_PRIORITY = 0
-BRIDGE_PRIORITY = 0
-"""The bridge's two processes run at the normal scheduler here (a real machine: SCHED_FIFO,
-``[LADRC]PRIORITY`` and the node's ``thread_priority``). Measured on this 2-core VM (top, a
-small job): sim node 84 %, follow node 66 %, bridge node 28 % (most of it the middleware taking
-``follow/status`` at 2 kHz), HAL component 16 % of a core: at SCHED_FIFO all four pass the
-kernel's real-time budget (95 % of each CPU, ``sched_rt_runtime_us``), which then stops every
-real-time thread for the rest of its second, up to 50 ms (``RT throttling activated``), and the
-controller faults on stale input. At the normal scheduler the bridge is preempted by the loops
-and waits for nothing of theirs."""
+COMPONENT_PRIORITY = 52
+BRIDGE_PRIORITY = 45
+"""SCHED_FIFO of the bridge's HAL component (above the loops: 1 kHz, about 10 % of a core) and
+of its node (below the loops: it waits for nothing of theirs; about 20 %, most of it the
+middleware taking ``follow/status`` at 2 kHz). Measured on this 2-core VM on ``thin_warped``
+(2026-12-07, two runs each): at the normal scheduler a LinuxCNC sample reached the node 71-126
+ms late at p99 (the sim's nozzle then jumps along the path when it comes: 0.67-0.68 x the
+target at the warped corner); at these priorities 18-20 ms (0.70-0.72). With the loops (sim
+and follow node, about 0.55-0.6 of a core each) the real-time load stays below the kernel's
+budget (95 % of each CPU, ``sched_rt_runtime_us``), past which it stops every real-time thread
+for up to 50 ms (``RT throttling activated``)."""
 FAULT_SETTLE_S = 4.0
 """After a killed bridge, the run goes on this long (LinuxCNC holds, the controller holds)."""
 BRIDGE_KEYS = ('pierce_heights_mm', 'pierce_dwell_s', 'cut_gap_mm', 'thc_delay_s', 'lift_mm',
@@ -76,6 +77,16 @@ BRIDGE_KEYS = ('pierce_heights_mm', 'pierce_dwell_s', 'cut_gap_mm', 'thc_delay_s
 
 class RunError(Exception):
     """The run cannot start; one line, exit 2."""
+
+
+ALLOWANCE_KEYS: dict[str, tuple[str, ...]] = {
+    'controller': (),  # any controller parameter (the parameter set's validation checks them)
+    'follow_node': ('stamp_tolerance_s',),
+    'sim_node': ('watchdog_timeout_s', 'watchdog_recover_s'),
+    'bridge': ('link_timeout_s', 'controller_timeout_s', 'sample_delay_limit_s'),
+    'linuxcnc': ('link_timeout_s',),
+}
+"""The allowance file's sections and the keys each may widen."""
 
 
 def allowance_file() -> Path:
@@ -98,24 +109,21 @@ def load_allowance(name: str) -> dict[str, Any]:
     'none': the product's values.
     """
     if name == 'none':
-        return {'file': 'none', 'controller': {}, 'follow_node': {}, 'sim_node': {}}
+        return {'file': 'none', **{k: {} for k in ALLOWANCE_KEYS}}
     path = allowance_file() if name in ('', 'default') else Path(name)
     try:
         data = yaml.safe_load(path.read_text(encoding='utf-8')) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise RunError(f'--allowance {path}: {" ".join(str(exc).split())[:200]}') from None
-    if not isinstance(data, dict) or set(data) - {'controller', 'follow_node', 'sim_node'}:
-        raise RunError(f'--allowance {path}: a mapping of controller:, follow_node: and '
-                       'sim_node:')
-    node = data.get('follow_node') or {}
-    if set(node) - {'stamp_tolerance_s'}:
-        raise RunError(f'--allowance {path}: follow_node: only stamp_tolerance_s')
-    sim = data.get('sim_node') or {}
-    if set(sim) - {'watchdog_timeout_s', 'watchdog_recover_s'}:
-        raise RunError(f'--allowance {path}: sim_node: only watchdog_timeout_s, '
-                       'watchdog_recover_s')
-    return {'file': str(path), 'controller': dict(data.get('controller') or {}),
-            'follow_node': dict(node), 'sim_node': dict(sim)}
+    if not isinstance(data, dict) or set(data) - set(ALLOWANCE_KEYS):
+        raise RunError(f'--allowance {path}: a mapping of {", ".join(ALLOWANCE_KEYS)}')
+    out: dict[str, Any] = {'file': str(path)}
+    for section, allowed in ALLOWANCE_KEYS.items():
+        values = data.get(section) or {}
+        if not isinstance(values, dict) or (allowed and set(values) - set(allowed)):
+            raise RunError(f'--allowance {path}: {section}: only {", ".join(allowed)}')
+        out[section] = dict(values)
+    return out
 
 
 def params_file(job: Any, base_file: str | None, allowance: dict[str, Any],
@@ -282,7 +290,9 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
     ini = render_run_config(folder / 'run', RunSettings(
         program=program, home_xy_mm=job.start_xy, rapid_mm_s=job.cnc.rapid_mm_s,
         accel_mm_s2=job.cnc.accel_mm_s2, component_priority=COMPONENT_PRIORITY,
-        servo_priority=SERVO_PRIORITY))
+        servo_priority=SERVO_PRIORITY,
+        extra=({('LADRC', 'LINK_TIMEOUT_S'): allowance['linuxcnc']['link_timeout_s']}
+               if 'link_timeout_s' in allowance['linuxcnc'] else {})))
     lc = LinuxCnc(ini)
     log_dir = keep or folder / 'logs'
     figures_file = folder / 'figures.json'
@@ -294,6 +304,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
     next(s for s in specs if s.name == 'ladrc_follow').parameters.update(
         allowance['follow_node'])
     specs.append(bridge_spec(job, lc.socket_path))
+    specs[-1].parameters.update(allowance['bridge'])
     env = isolated_env(args.domain_id)
     interrupted = [False]
 
@@ -380,8 +391,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
     if keep is None:
         shutil.rmtree(folder, ignore_errors=True)
     print(json.dumps({'bag': args.bag, 'exit_codes': codes, 'job': job.name, 'cnc': 'linuxcnc',
-                      'allowance': {k: allowance[k] for k in ('file', 'controller',
-                                                              'follow_node', 'sim_node')},
+                      'allowance': allowance,
                       **figures, 'linuxcnc': linuxcnc}, default=str))
     ok = not error and all(c in (0, -2, 130) for n, c in codes.items()
                            if not (fault and n == 'ladrc_bridge'))

@@ -678,7 +678,7 @@ class ConformProbe:
         offset = self.f['pos'][-1] - self._pos0
         # back from anywhere inside the travel bound: the return is bounded as every motion
         # test is (a defect that moved the axis during the enable test, then a stall of the
-        # host, used to leave seven rules "not run": bench/repro/conform_ignore_enable.py)
+        # host, used to leave seven rules "not run")
         if abs(offset) > self.plan.max_travel_mm:
             return (f'the axis is {offset:+.3f} mm from its start (outside the travel bound)')
         self.aborted = ''

@@ -16,7 +16,10 @@ What it serves (``foxglove-sdk``'s WebSocket server, JSON channels with JSON sch
   (:mod:`.view_channels` says exactly which, and how: numpy per batch). Field names are the
   messages' own, so the layout's paths (``/follow/status.gap_mm``) read a bag and the live view
   alike; ``view_ticks`` (live only) is how many messages the view received in that interval.
-* ``/follow/events``: every event, not decimated (``kind_name`` added).
+* ``/follow/events``: every event, not decimated (``kind_name`` added). A client that
+  subscribes gets the events so far first (the last 100, the ROS topic's transient-local
+  history: the parameter set in force is among them), as a late ROS reader would; clients
+  subscribed before see those again then.
 * ``/view/xy_gap_error``: the XY path of a job coloured by the gap error (one point per
   interval, its band), ``/view/log``: foxglove.Log lines for each state change, each new fault
   reason (ERROR), each new hold reason (WARNING), each event and each operator call.
@@ -41,6 +44,7 @@ prints a one-line JSON summary (messages received and sent per topic).
 from __future__ import annotations
 
 import argparse
+from collections import deque
 from dataclasses import dataclass
 import ipaddress
 import json
@@ -198,6 +202,7 @@ class LiveView:
                         for name in OPERATOR_SERVICES}
         self.services = [self._service(name) for name in OPERATOR_SERVICES]
         self._lock = threading.Lock()  # the log channel: from the loop and service calls
+        self.history: deque[tuple[dict[str, Any], int]] = deque(maxlen=qos.EVENTS.depth)
 
     # -- the services ----------------------------------------------------------------------
     def _service(self, name: str) -> Any:
@@ -297,7 +302,9 @@ class LiveView:
             except ValueError:
                 kind = str(obj['kind'])
             obj['kind_name'] = kind
-            self.channels[EVENTS_TOPIC].log(obj, log_time=t)
+            with self._lock:
+                self.history.append((obj, t))
+                self.channels[EVENTS_TOPIC].log(obj, log_time=t)
             self.events['sent'] += 1
             what = ('parameters' if kind == 'PARAMETERS' else
                     f'{kind} value_mm={obj["value_mm"]}' + (f' {obj["text"]}' if obj['text']
@@ -325,6 +332,17 @@ class LiveView:
                 self._send(view, *dec.push(cols))
             elif dec.pending and now - self.last_rx[view.topic] > quiet_s:
                 self._send(view, *dec.flush())
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        """Send the events so far to a client that subscribes to them (module docstring)."""
+        if channel.topic != '/' + EVENTS_TOPIC:
+            return
+        with self._lock:
+            for obj, t in self.history:
+                self.channels[EVENTS_TOPIC].log(obj, log_time=t)
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        """Nothing to do (the server listener's other callback in use)."""
 
     def summary(self) -> dict[str, Any]:
         """Messages received and sent per topic (the exit line)."""
@@ -385,7 +403,7 @@ def main(args: list[str] | None = None) -> int:
             server = foxglove.start_server(
                 name='ladrc live view', host=settings.host, port=settings.port,
                 capabilities=[Capability.Services], supported_encodings=['json'],
-                services=view.services, context=view.context)
+                services=view.services, context=view.context, server_listener=view)
         except Exception as exc:  # the port in use, an address not on this machine
             why = ' '.join(str(exc).split()).removeprefix('FoxgloveError: ')
             print(f'view_node: cannot listen on {settings.host}:{settings.port}: {why}',

@@ -8,12 +8,14 @@ axes linked: drag to zoom, the wheel zooms around the pointer, shift + wheel pan
 double-click shows the whole run.
 
 On every zoom the page picks the finest level with at most :data:`POINTS_PER_PX` points per
-pixel of the plot's width: every sample when the window holds that few (an hour at 2 kHz:
-windows up to about 1.6 s on a 1 100 px plot), else the min/max of buckets of 4, 16, 64 ...
+pixel of the plot's width: every sample when the window holds that few (at 2 kHz: windows up
+to 1.8 s on a plot drawn 1 200 px wide), else the min/max of buckets of 4, 16, 64 ...
 samples (:mod:`.pyramid`), so a single-sample spike shows at any zoom. ``window.ladrcReport``
 is the page's API (the browser test and the bench use it): ``ready`` (a promise: every plot
-drawn), ``zoom(t0_s, t1_s)`` and ``reset()`` (promises), ``visible(plot, key)``,
-``values(plot, key)``, ``level(key, level)``, ``timing`` and ``errors``.
+drawn), ``zoom(t0_s, t1_s)``, ``reset()`` and ``back()`` (promises), ``window`` and ``level``
+(what is shown), ``visible(plot, key)`` (a curve's points in the window), ``values(plot,
+key)``, ``pyramid(key, level)`` (the page's min/max level of a curve), ``timing`` and
+``errors``.
 """
 
 from __future__ import annotations
