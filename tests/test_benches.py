@@ -7,8 +7,9 @@ object must hold the keys its docstring documents, each with a value of the righ
 Nothing here looks at a figure's size: the benches measure time, the tests only that they run
 (a loaded machine makes them slower, never failed); the timeouts are bounds on a hang.
 
-The benches that start ROS nodes (``stalls``, ``loop_timing``, ``live_jobs``,
-``view_load``, ``linuxcnc_jobs``) carry the ``ros`` marker and run in the isolation of the ROS tests: the
+The benches that start ROS nodes (``stalls``, ``loop_timing``, ``live_jobs``, ``view_load``,
+``linuxcnc_jobs``, ``cia402_timing``) carry the ``ros`` marker and run in the isolation of the
+ROS tests: the
 ROS_DOMAIN_ID and localhost discovery of tests/ros/conftest.py (loaded from there, as
 tests/commissioning/test_calibration_live.py does), passed to the bench's own ``--domain-id``
 where it has one. Not run here: the live part of ``bag_scale`` (``--part live``) and the live

@@ -38,7 +38,7 @@ def slug(heading: str) -> str:
 
 
 def anchors(path: Path) -> set[str]:
-    """The anchors a Markdown file offers: its headings' slugs (numbered when repeated), ids."""
+    """Return the anchors of a Markdown file: its headings' slugs (numbered when repeated), ids."""
     text = FENCE.sub('', path.read_text(encoding='utf-8'))
     seen: dict[str, int] = {}
     out = set(re.findall(r'<a\s+id="([^"]+)"', text))
@@ -53,7 +53,7 @@ def anchors(path: Path) -> set[str]:
 
 
 def links(path: Path) -> list[str]:
-    """The link targets of a Markdown file, code blocks left out."""
+    """Return the link targets of a Markdown file, code blocks left out."""
     text = FENCE.sub('', path.read_text(encoding='utf-8'))
     text = re.sub(r'`[^`\n]*`', '', text)
     return [a or b for a, b in LINK.findall(text)]

@@ -35,7 +35,7 @@ HANG_S = 900  # a hang, not a speed
 
 
 def readme_commands() -> list[str]:
-    """The commands of README.md's fenced blocks, in order (comments stripped)."""
+    """Return the commands of README.md's fenced blocks, in order (comments stripped)."""
     text = (ROOT / 'README.md').read_text(encoding='utf-8')
     out = []
     for block in re.findall(r'```[a-z]*\n(.*?)```', text, re.S):

@@ -50,7 +50,7 @@ STAMP_TOLERANCE_S = 0.01  # the product's default (the node's stamp_tolerance_s)
 # ms with no set being built, the FIFO loop preempted (likely kernel 6.18's fair server, which
 # runs starved normal tasks up to 50 ms per second over real-time ones; not verified).
 RT_TIMEOUT_S = 0.1
-BUILD_MIN_S = 0.010  # the shortest hold of one set built on the loop (docs/safety.md, "What the runs found")
+BUILD_MIN_S = 0.010  # the shortest hold of one set built on the loop (docs/safety.md)
 # A bound on a hang, not on speed: lock step is slower on a loaded machine, never different.
 HANG_S = 300.0
 
@@ -237,7 +237,7 @@ def test_the_cnc_interface_over_dds_pierce_hold_and_motion(axis):
 def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):
     """A set is checked (stability gate ~10 ms) and built on the parameter thread, not the loop.
 
-    On the loop thread each parameter of a set held it 10-21 ms (docs/safety.md, "What the runs found"), one
+    On the loop thread each parameter of a set held it 10-21 ms (docs/safety.md), one
     request of three 30 ms or more: beyond the drive's 5 ms watchdog and a stall of this machine
     class (STALL_MAX_S, bench/stalls.py). rclpy checks a request's parameters one by one.
     """
