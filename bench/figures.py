@@ -8,7 +8,9 @@ commit and on which machine (cores, CPU) it was measured. The benches (``bench/*
 their figures as the last line of JSON; this script runs them (all, those marked quick with
 ``--quick``, or the ones named with ``--only``), takes the figures out of that line, and writes
 ``docs/figures.json`` (the data) and ``docs/figures.md`` (the table, rendered from the data),
-keeping the rows it did not run as they were. The README's short table (between the
+keeping the rows it did not run as they were. A full run also regenerates docs/quality.md's
+suite tables (``ladrc suite --law-only``, between ``suite:begin`` and ``suite:end``). The
+README's short table (between the
 ``figures:begin`` and ``figures:end`` markers) is rendered from the same data. Docs that cite a
 figure link to its row (``docs/figures.md#<id>``) instead of restating it.
 
@@ -30,6 +32,7 @@ import json
 import os
 from pathlib import Path
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -232,6 +235,35 @@ def update_readme(data: dict) -> bool:
     return True
 
 
+QUALITY = DOCS / 'quality.md'
+
+
+def update_quality(out_dir: Path) -> bool:
+    """Regenerate docs/quality.md's suite tables (``ladrc suite --law-only``) in place.
+
+    The tables between ``suite:begin`` and ``suite:end`` are the suite's own ``suite.md``
+    from its "Notes vs simulation" on, its headings one level down. Returns False when the
+    suite failed (the tables stay as they were).
+    """
+    folder = out_dir / 'suite'
+    proc = subprocess.run([sys.executable, '-m', 'ladrc_tools.cli', 'suite', '-q', '--law-only',
+                           '-o', str(folder)], cwd=ROOT, capture_output=True, text=True,
+                          check=False)
+    md = folder / 'suite.md'
+    if proc.returncode != 0 or not md.is_file():
+        print(f'figures: ladrc suite failed: {proc.stderr.strip()[-300:]}', file=sys.stderr)
+        return False
+    text = md.read_text(encoding='utf-8')
+    part = text[text.index('## Notes vs simulation'):].replace(str(folder), 'DIR')
+    part = re.sub(r'^## ', '### ', part, flags=re.M)
+    begin, end = '<!-- suite:begin -->', '<!-- suite:end -->'
+    doc = QUALITY.read_text(encoding='utf-8')
+    head, rest = doc.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    QUALITY.write_text(f'{head}{begin}\n{part.rstrip()}\n{end}{tail}', encoding='utf-8')
+    return True
+
+
 def main() -> int:
     """Run the benches of the chosen figures and write the tables."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -284,6 +316,14 @@ def main() -> int:
     written = [str(data_file), str(table_file)]
     if out.resolve() == DOCS.resolve() and update_readme(data):
         written.append(str(README))
+    if out.resolve() == DOCS.resolve() and not a.quick and not ids and not a.dry_run:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix='figures-') as tmp:
+            if update_quality(Path(tmp)):
+                written.append(str(QUALITY))
+            else:
+                failed.append('quality-suite')
     print(json.dumps({'figures': done, 'failed': failed,
                       'wall_s': round(time.monotonic() - t0, 1), 'written': written}))
     return 1 if failed else 0

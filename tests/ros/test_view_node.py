@@ -163,7 +163,9 @@ def test_the_view_of_a_lockstep_run_equals_its_bag(tmp_path):
         status = client.messages['/follow/status']
         assert client.wait_for(lambda: status and status[-1].data['tick'] >= last_tick, 30.0), (
             last_tick, status[-1].data if status else None, nodes.log('view'))
-        # a client that comes late gets the events so far (the parameter set in force first)
+        kinds = [m.data['kind_name'] for m in client.messages['/follow/events']]
+        # a client that comes late gets the events so far (the parameter set in force first;
+        # the clients subscribed before get them again then)
         late = FoxgloveClient(f'ws://127.0.0.1:{port}', topics=['/follow/events'])
         try:
             assert late.wait_for(lambda: len(late.messages.get('/follow/events', []))
@@ -213,7 +215,6 @@ def test_the_view_of_a_lockstep_run_equals_its_bag(tmp_path):
     logged = {m.data['message'] for m in client.messages['/view/log']}
     assert {'FAULT: ' + r for r in reasons} <= logged
     # every event arrives, not decimated; a late client gets them too
-    kinds = [m.data['kind_name'] for m in client.messages['/follow/events']]
     assert len(kinds) == n_events and late_kinds == kinds and kinds[0] == 'PARAMETERS', kinds
 
 
@@ -246,7 +247,9 @@ def test_operator_calls_reach_the_follow_node_and_the_view_stays_on_loopback(tmp
         assert client.wait_for(lambda: status[-1].data['state'] == 0, 30.0)
         with pytest.raises(ServiceCallFailure, match='target_gap_mm'):
             client.call('/follow/start', {'gap': 1.0})  # not a field of the request
-        kinds = [m.data['kind_name'] for m in client.messages['/follow/events']]
+        events = client.messages['/follow/events']
+        client.wait_for(lambda: events and events[-1].data['kind_name'] == 'STOP_FOLLOW', 10.0)
+        kinds = [m.data['kind_name'] for m in events]
         assert kinds[-3:] == ['START_FOLLOW', 'LIFT', 'STOP_FOLLOW'], kinds
         logged = [m.data['message'] for m in client.messages['/view/log']]
         assert any(line.startswith('operator follow/start') for line in logged), logged

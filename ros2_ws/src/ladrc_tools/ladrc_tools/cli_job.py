@@ -142,6 +142,10 @@ def _run_post(a: argparse.Namespace) -> int:
     if bad:
         raise CliError(bad[0])
     result = postprocess(job, settings)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliError(f'{out.parent}: cannot create: {exc.strerror or exc}') from None
     tmp = out.with_name(out.name + '.part')
     tmp.write_text(result.text, encoding='utf-8')
     tmp.replace(out)
