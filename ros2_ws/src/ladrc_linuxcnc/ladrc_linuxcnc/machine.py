@@ -571,9 +571,11 @@ def read_program(path: str | Path, ini: str | Path | None = None,
         env.update({k: v for k, v in rtapi_env(Path(ini).parent).items()
                     if k.startswith('RTAPI_')})
     try:
-        r = subprocess.run([SYSTEM_PYTHON, str(PACKAGE_DIR / 'gcode_path.py'), str(path)],
-                           capture_output=True, text=True, timeout=timeout_s, env=env,
-                           check=False)
+        # the interpreter writes its parameter file (rs274ngc.var) where it runs: not here
+        with tempfile.TemporaryDirectory(prefix='ladrc-gcode-') as scratch:
+            r = subprocess.run([SYSTEM_PYTHON, str(PACKAGE_DIR / 'gcode_path.py'),
+                                str(Path(path).resolve())], capture_output=True, text=True,
+                               timeout=timeout_s, env=env, check=False, cwd=scratch)
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise LinuxCncError(f"LinuxCNC's interpreter on {path}: {exc}") from None
     if r.returncode != 0 or not r.stdout.strip():
