@@ -139,6 +139,13 @@ FIGURES: tuple[Figure, ...] = (
                f'{e["ran_to_end"].get("product", [0, 0])[1]} product), '
                f'{sum(x.get("contacts") or 0 for rs in e["linuxcnc"].values() for x in rs)} '
                'contacts' for n, e in r['jobs'].items())),
+    Figure('view-load', "the live view's cost to the loop (showcase live, 2 rounds without / "
+           'with --view)', 'view_load', (),
+           lambda r: f'{_f(r["rate_hz_without"], 4)} / {_f(r["rate_hz_with"], 4)} ticks/s, '
+                     f'period p99 {_f(r["period_p99_us_without"])} / '
+                     f'{_f(r["period_p99_us_with"])} µs; status at {_f(r["status_rate_hz"])} '
+                     f'Hz to the client, every fault reason received: '
+                     f'{r["all_fault_reasons_received"]}; view CPU {_f(r["view_cpu_pct"])} %'),
     Figure('html-report-hour', 'zoomable HTML report of a 1-hour bag', 'html_report', (),
            lambda r: f'{r["html_bytes"] / 1e6:.1f} MB, drawn in {_f(r["chromium_render_s"])} s '
                      f'in headless Chromium; a 50 ms window shows {r["points_in_50ms_window"]}'
@@ -193,6 +200,11 @@ def command(f: Figure) -> str:
     return ' '.join(('scripts/in-env python', f'bench/{f.bench}.py', *f.args))
 
 
+def _cell(text: str) -> str:
+    """Return ``text`` fit for a Markdown table cell (its pipes escaped)."""
+    return text.replace('|', '\\|')
+
+
 def render(data: dict) -> str:
     """Render docs/figures.md from the data."""
     out = ['# Figures', '',
@@ -208,7 +220,8 @@ def render(data: dict) -> str:
         else:
             value = row['value']
             when = f'{row["date"]}, {row["commit"]}, {row["machine"]}'
-        out.append(f'| <a id="{f.id}"></a>{f.label} | {value} | `{command(f)}` | {when} |')
+        out.append(f'| <a id="{f.id}"></a>{_cell(f.label)} | {_cell(value)} | `{command(f)}` | '
+                   f'{when} |')
     return '\n'.join(out) + '\n'
 
 
@@ -218,7 +231,7 @@ def render_readme_table(data: dict) -> str:
     for f in FIGURES:
         if f.readme:
             value = data.get(f.id, {}).get('value', 'not measured yet')
-            rows.append(f'| [{f.label}](docs/figures.md#{f.id}) | {value} |')
+            rows.append(f'| [{_cell(f.label)}](docs/figures.md#{f.id}) | {_cell(value)} |')
     return '\n'.join(rows)
 
 

@@ -90,9 +90,16 @@ def findings(source: str, where: str) -> list[str]:
     return out
 
 
+# programs LinuxCNC runs on the system's Python (tests/test_layers.py LINUXCNC_SIDE): they can
+# import nothing of the project, so they schedule themselves
+SYSTEM_PYTHON_SIDE = {'ladrc_linuxcnc/ladrc_linuxcnc/hal_component.py'}
+
+
 def test_the_contract_is_written_once():
     problems = []
     for path in _sources():
+        if _rel(path) in SYSTEM_PYTHON_SIDE:
+            continue
         problems += findings(path.read_text(encoding='utf-8'), _rel(path))
     assert not problems, '\n'.join(problems)
 

@@ -7,7 +7,9 @@ repository root in one shell each, with ``out/`` pointing into this test's tempo
 that runs this test: it is the one not run here. A command that needs a system package the
 machine lacks (LinuxCNC) is skipped with the set-up's line (tests/support/system.py), and
 ``make test`` lists it at its end. A renamed flag, a moved file or a tool that fails makes
-this test fail.
+this test fail. The conformance kit judges real-time behaviour at the product's 5 ms watchdog:
+on a loaded machine (this test runs beside the others) its verdict may be a failed rule, so
+here it must run to its verdict and write its report (its own tests check the verdict).
 
 These start ROS nodes (``make demo``, ``bringup``): marker ``readme`` (scripts/run-tests runs
 them beside the lock-step tests, on their own DDS domains).
@@ -48,6 +50,9 @@ def readme_commands() -> list[str]:
 
 COMMANDS = readme_commands()
 NOT_HERE = {'make test'}  # the command that runs this test
+# real-time checks whose pass or fail is the machine's timing (tests/commissioning runs them
+# with bounds from bench/stalls.py): exit 0 (passed) or 1 (a rule failed) with its report
+RUN_TO_VERDICT = ('ladrc conform',)
 
 
 def test_the_readme_has_commands():
@@ -77,6 +82,12 @@ def test_a_readme_command_runs(cmd, tmp_path_factory):
             os.killpg(proc.pid, signal.SIGKILL)
             text, _ = proc.communicate()
         pytest.fail(f'{cmd!r} hung for {HANG_S} s:\n{text[-3000:]}')
+    if any(v in cmd for v in RUN_TO_VERDICT):
+        # a real-time check: its verdict is the driver's under this machine's load (the kit's
+        # own tests pass it with their stall-measured bounds); here: it ran, judged, wrote
+        assert proc.returncode in (0, 1) and 'written:' in text, \
+            f'{cmd!r} exited {proc.returncode}:\n{text[-3000:]}'
+        return
     assert proc.returncode == 0, f'{cmd!r} exited {proc.returncode}:\n{text[-3000:]}'
 
 

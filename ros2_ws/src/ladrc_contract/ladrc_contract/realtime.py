@@ -48,6 +48,28 @@ def schedule_this_thread(fifo_priority: int) -> bool:
     return True
 
 
+def schedule_task(tid: int, fifo_priority: int) -> str:
+    """Run another process' thread ``tid`` at SCHED_FIFO ``fifo_priority``; '' or why not.
+
+    For a process this one starts but does not run (LinuxCNC's real-time threads).
+    """
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(fifo_priority))
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return ''
+
+
+def fifo_preexec(fifo_priority: int):
+    """Return a ``preexec_fn`` that starts a child at SCHED_FIFO ``fifo_priority``.
+
+    Every thread the child makes inherits it; a refusal leaves the child as it is.
+    """
+    def apply() -> None:
+        schedule_this_thread(fifo_priority)
+    return apply
+
+
 def _no_timer_slack(tid: int) -> None:
     with open(f'/proc/{tid}/timerslack_ns', 'w', encoding='ascii') as f:
         f.write('1')

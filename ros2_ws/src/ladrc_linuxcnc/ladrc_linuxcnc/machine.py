@@ -432,12 +432,11 @@ class LinuxCnc:
                 except OSError:
                     continue
                 if name.startswith('rtapi_app:T#'):
-                    try:
-                        os.sched_setscheduler(int(task.name), os.SCHED_FIFO,
-                                              os.sched_param(priority))
-                        out.append(f'{name} {task.name} SCHED_FIFO {priority}')
-                    except OSError as exc:
-                        out.append(f'{name} {task.name}: {exc.strerror}')
+                    from ladrc_contract.realtime import schedule_task
+
+                    why = schedule_task(int(task.name), priority)
+                    out.append(f'{name} {task.name}: {why}' if why else
+                               f'{name} {task.name} SCHED_FIFO {priority}')
         return out
 
     def events(self) -> list[dict]:

@@ -44,15 +44,19 @@ from dataclasses import dataclass, field
 import math
 from typing import Any
 
+from ladrc_contract.codes import FollowState, Segment, SubState
 from ladrc_contract.schema import Section, param
 
 from . import protocol as p
 
-# follow states and sub-states (ladrc_contract.codes; integers here, as FollowStatus carries)
-IDLE, PID, LADRC, FAULT = 0, 3, 4, 5
-SUB_NONE, SUB_PIERCE, SUB_THC_DELAY, SUB_LIFT = 0, 3, 4, 5
+# follow states and sub-states, as FollowStatus carries them (ladrc_contract.codes)
+IDLE, PID, LADRC, FAULT = (int(FollowState.IDLE), int(FollowState.PID),
+                           int(FollowState.LADRC), int(FollowState.FAULT))
+SUB_NONE, SUB_PIERCE, SUB_THC_DELAY, SUB_LIFT = (int(SubState.NONE), int(SubState.PIERCE),
+                                                 int(SubState.THC_DELAY), int(SubState.LIFT))
 # CncMotion.SEGMENT_*
-SEG_NONE, SEG_RAPID, SEG_CUT, SEG_PIERCE = 0, 1, 2, 3
+SEG_NONE, SEG_RAPID, SEG_CUT, SEG_PIERCE = (int(Segment.NONE), int(Segment.RAPID),
+                                            int(Segment.CUT), int(Segment.PIERCE))
 MOVING_MM_S = 0.5
 """XY counts as moving above this path speed (the controller's cnc.moving_feed_mm_s)."""
 MOVED_MM = 0.01

@@ -22,6 +22,8 @@ import subprocess
 import sys
 import time
 
+from ladrc_contract.realtime import fifo_preexec
+
 HOST = '127.0.0.1'
 
 
@@ -73,16 +75,6 @@ def _accepts(port: int) -> bool:
         return False
 
 
-def _fifo(priority: int):
-    """Return a ``preexec_fn`` that runs the child at SCHED_FIFO ``priority`` (or as it is)."""
-    def apply() -> None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        except (OSError, AttributeError):
-            pass
-    return apply
-
-
 def start_bus_server(log_path: Path | str | None = None, timeout_s: float = 60.0,
                      attempts: int = 3, fifo_priority: int = 51) -> BusServer:
     """Start python-can-remote on a free port of 127.0.0.1; return when it accepts.
@@ -102,7 +94,7 @@ def start_bus_server(log_path: Path | str | None = None, timeout_s: float = 60.0
                 [sys.executable, '-m', 'can_remote', '-i', 'virtual', '-c', '0', '-H', HOST,
                  '-p', str(port)], stdout=out, stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
-                preexec_fn=_fifo(fifo_priority) if fifo_priority > 0 else None)
+                preexec_fn=fifo_preexec(fifo_priority) if fifo_priority > 0 else None)
         finally:
             if out is not subprocess.DEVNULL:
                 out.close()

@@ -82,6 +82,7 @@ class CncPartner:
         self._inpos_target = math.nan
         self.feed_override = 1.0   # fraction of the programmed feed asked for (adaptive feed)
         self._stale_lifted = False  # lifted for the CNC's present silence (a sample resets it)
+        self._cnc_live = False  # a sample of the CNC was fresh at a tick: it was live
 
     def configure(self, p, h_s: float) -> None:
         """Take the ``cnc`` section and the in-position rule (pid.followed_*) of a set."""
@@ -244,10 +245,20 @@ class CncPartner:
         return new_target
 
     def stale_lift_due(self, t_s: float) -> bool:
-        """Return True once per silence of the CNC longer than ``stale_lift_s`` (0: never)."""
+        """Return True once per silence of the CNC longer than ``stale_lift_s`` (0: never).
+
+        A silence of a CNC that was live: its last sample was fresh (within ``stale_timeout_s``)
+        at some tick. A sample that comes stale is held, not lifted for: the CNC did not go
+        silent, it never spoke in time.
+        """
         p = self.p
-        if (p.stale_lift_s <= 0.0 or self._stale_lifted or self.cnc.seq == 0
-                or not t_s - self.cnc.stamp_s >= p.stale_lift_s):
+        if p.stale_lift_s <= 0.0 or self._stale_lifted or self.cnc.seq == 0:
+            return False
+        age = t_s - self.cnc.stamp_s
+        if age < p.stale_timeout_s:
+            self._cnc_live = True
+            return False
+        if not self._cnc_live or not age >= p.stale_lift_s:
             return False
         self._stale_lifted = True
         return True
