@@ -96,11 +96,64 @@ FIGURES: tuple[Figure, ...] = (
     Figure('job-speed', 'headless cutting jobs', 'job_speed', ('--repeat', '1'),
            lambda r: f'{_f(r["realtime_x_min"])}× real time at least (target '
                      f'{_f(r["target_x"])}×)', quick=True),
+    Figure('jobs-headless', 'shipped jobs headless (`ladrc job NAME`): job time, pierces, '
+           'contacts, faults, least true gap / target while cutting', 'live_jobs',
+           ('--lockstep',),
+           lambda r: '; '.join(
+               f'{n}: {_f(j["headless"]["job_time_s"], 4)} s, {j["headless"]["pierces"]} '
+               f'pierces, {j["headless"]["contacts"]} contacts, {j["headless"]["faults"]} '
+               f'faults, {_f(j["headless"]["min_gap_over_target_cutting"])}'
+               for n, j in r['jobs'].items())),
+    Figure('jobs-lockstep', 'shipped jobs live in lock step (unpaced, recorder): verdict, '
+           'figures equal to headless, speed', 'live_jobs', ('--lockstep',),
+           lambda r: '; '.join(
+               f'{n}: {j["verdict"]}, '
+               + ('equal' if all(j['live'].get(k) == v for k, v in j['headless'].items())
+                  else 'differs')
+               + f', {_f(j["live"]["realtime_x"])}× real time' for n, j in r['jobs'].items())),
+    Figure('jobs-lockstep-separate', 'shipped jobs live in lock step with the CNC node '
+           '(--separate-cnc)', 'live_jobs', ('--lockstep', '--separate-cnc'),
+           lambda r: '; '.join(
+               f'{n}: {j["verdict"]}, '
+               + ('equal' if all(j['live'].get(k) == v for k, v in j['headless'].items())
+                  else 'differs')
+               + f', {_f(j["live"]["realtime_x"])}× real time' for n, j in r['jobs'].items())),
+    Figure('jobs-free', 'shipped jobs live, free-running (real time)', 'live_jobs', (),
+           lambda r: '; '.join(
+               f'{n}: {j["verdict"]} ({_f(j["live"]["job_time_s"])} s of job)'
+               for n, j in r['jobs'].items())),
     Figure('seed-experiments', "the notes' experiments as the notes ran them",
            'seed_experiments', ('--quick',),
            lambda r: f'5 Hz sine on the target: TD {_f(r["sine5_td_ratio"])} (notes 0.72); '
                      f'thin sheet: LADRC {_f(r["thin_sheet_ladrc_range_mm"])} mm range vs PID '
                      f'{_f(r["thin_sheet_pid_range_mm"])} mm', quick=True, readme=True),
+    Figure('seed-sine-steps', "the notes' 5 Hz target sine and steps run by the LADRC: TD and "
+           'gap ratio; command chatter above 20 Hz, travel', 'seed_experiments', (),
+           lambda r: '; '.join(
+               [f'sine, {x["observer"]}: TD {_f(x["td_ratio"])}, gap {_f(x["gap_ratio"])} '
+                f'({_f(x["gap_phase_deg"])}°)' for x in r['rows']
+                if x['experiment'] == 'sine on the target']
+               + [f'{x["step"]}, {x["observer"]}'
+                  f'{", re-interpolated" if x["reinterpolate"] else ""}: chatter '
+                  f'{_f(x["chatter_mm_s"])} mm/s, travel {_f(x["travel_mm"])} mm'
+                  for x in r['rows'] if x['experiment'] == 'step'])),
+    Figure('seed-thin-sheet', "the notes' thin sheet: deviation (range) per setting",
+           'seed_experiments', (),
+           lambda r: '; '.join(
+               f'{x["setting"]}: {x["deviation_min_mm"]:+.2f}…{x["deviation_max_mm"]:+.2f} mm '
+               f'({_f(x["range_mm"])})' for x in r['rows'] if x['experiment'] == 'thin sheet')),
+    Figure('seed-fal', 'nonlinear observer (fal) vs linear: error RMS, chatter',
+           'seed_experiments', (),
+           lambda r: '; '.join(
+               f'{x["scenario"]}, {x["setting"]}: RMS {_f(x["error_rms_mm"])} mm, chatter '
+               f'{_f(x["chatter_mm_s"])} mm/s' for x in r['rows']
+               if x['experiment'] == 'nonlinear observer')),
+    Figure('seed-kalman', 'Kalman filter in the loop (plain, gated): error RMS / max, chatter',
+           'seed_experiments', (),
+           lambda r: '; '.join(
+               f'{x["scenario"]}, {x["setting"]}: RMS {_f(x["error_rms_mm"])} mm, max '
+               f'{_f(x["error_max_mm"])} mm, chatter {_f(x["chatter_mm_s"])} mm/s'
+               for x in r['rows'] if x['experiment'] == 'kalman')),
     Figure('sweep-speed', 'batch closed loop, 1000 parameter sets × the batchable library',
            'sweep_speed', (),
            lambda r: f'{_f(r["wall_s"])} s wall, {_f(r["aggregate_realtime_x"])}× real time '
@@ -109,13 +162,38 @@ FIGURES: tuple[Figure, ...] = (
            'bag_read', ('--seconds', '120'),
            lambda r: f'{_f(r["indexed_msgs_per_s"])} messages/s, {_f(r["speedup"])}× rosbags '
                      'message by message', quick=True),
+    Figure('bag-strings', "decoding the 2 kHz command topic with its commander's name and "
+           'without (a fixed layout)', 'bag_read', ('--seconds', '120'),
+           lambda r: f'{_f(r["command_with_string_s"])} / {_f(r["command_fixed_s"])} s for '
+                     f'{r["command_messages"]} messages', quick=True),
     Figure('edge-fit', "the edge verification's fit in the tick, SCHED_FIFO, 2 busy loops",
            'edge_fit_timing', (),
            lambda r: f'median {_f(r["median_ms"])} ms, max {_f(r["max_ms"])} ms'),
+    Figure('stalls', 'longest wake-up lateness of a 2 kHz deadline loop (20 s per condition)',
+           'stalls', (),
+           lambda r: ', '.join(f'{k} {_f(v["late_max_ms"])} ms'
+                               for k, v in r['conditions'].items())),
     Figure('loop-timing', 'live loop, sim + controller + recorder (60 s, deadline loop)',
            'loop_timing', ('--duration', '60', '--loops', 'deadline'),
            lambda r: f'{_f(r["rate_hz"])} ticks/s, period p99 {_f(r["period_p99_us"])} µs, '
                      f'latency p99 {_f(r["latency_p99_ms"])} ms', readme=True),
+    Figure('lockstep-speed', 'lock step (sim + controller), unpaced, 20 s, shipped UDP profile',
+           'loop_timing', ('--duration', '60', '--loops', 'deadline'),
+           lambda r: f'{_f(r["lockstep_realtime_x"])}× real time with the full recorder '
+                     f'({r["lockstep"]["messages_lost"]} messages lost), '
+                     f'{_f(r["lockstep_alone_realtime_x"])}× alone'),
+    Figure('loop-modes', 'live loop per mode and recorder (deadline / sync, 60 s each)',
+           'loop_timing', ('--duration', '60', '--loops', 'deadline,sync', '--lockstep', '0'),
+           lambda r: '; '.join(
+               f'{k.replace("/", ", ").replace("_", " ")}: {_f(v["rate_hz"], 6)} Hz, period '
+               f'p50/p99/max {_f(v["period_p50_us"], 4)}/{_f(v["period_p99_us"], 4)}/'
+               f'{_f(v["period_max_us"], 5)} µs, superseded/reused/late/never received '
+               f'{v["samples_superseded"]}/{v["samples_reused"]}/{v["samples_handled_late"]}/'
+               f'{v["samples_never_received"]}, latency p50/p99 {_f(v["latency_p50_ms"])}/'
+               f'{_f(v["latency_p99_ms"])} ms, status lost {v["status_lost_by_recorder"]}, '
+               f'watchdog trips {v["watchdog_trips"]}' for k, v in r['runs'].items())
+           + f'; bare timer {_f(r["bare_timer_rate_hz"], 5)} Hz, p99 '
+             f'{_f(r["bare_timer_period_p99_us"])} µs'),
     Figure('cia402-timing', 'CiA 402 path free-running on the test bus, 1 ms', 'cia402_timing',
            ('--duration', '30', '--periods-ms', '1'),
            lambda r: f'{100 * r["held"]:.1f} % of SYNC periods held, SYNC jitter p99 '
@@ -130,6 +208,15 @@ FIGURES: tuple[Figure, ...] = (
                      f'parameters accepted, axis at rest {_f(r["kill_stop_ms"])} ms after a '
                      f'controller SIGKILL ({_f(r.get("canopen_kill_stop_ms"))} ms after a '
                      'CiA 402 driver SIGKILL)', readme=True),
+    Figure('fault-matrix-edges', 'fault-injection matrix, edge rows: smallest true gap / target '
+           '(the bar: 0.7)', 'fault_matrix', (),
+           lambda r: '; '.join(f'{x["row"]} {_f(x["gap_over_target"])}' for x in r['rows']
+                               if x.get('gap_over_target') is not None)),
+    Figure('fault-matrix-live', 'fault-injection matrix, live rows: recorder SIGKILL, load',
+           'fault_matrix', (),
+           lambda r: f'at most {_f(r["recorder_kill_loss_s"])} s of the bag lost before a '
+                     f'recorder SIGKILL (worst of 3); {r["spurious_faults_under_load"]} '
+                     'spurious faults following under two busy loops'),
     Figure('linuxcnc-jobs', 'shipped jobs under LinuxCNC (bringup --cnc linuxcnc), 2 runs each '
            'with the timing allowance and with the product timing', 'linuxcnc_jobs', (),
            lambda r: '; '.join(
@@ -150,11 +237,32 @@ FIGURES: tuple[Figure, ...] = (
            lambda r: f'{r["html_bytes"] / 1e6:.1f} MB, drawn in {_f(r["chromium_render_s"])} s '
                      f'in headless Chromium; a 50 ms window shows {r["points_in_50ms_window"]}'
                      f' of its {r["samples_in_window"]} samples', readme=True),
+    Figure('html-report-cost', '`ladrc report` of a 1-hour bag with / without the HTML, each in '
+           'its own process (least of the rounds)', 'html_report', (),
+           lambda r: f'wall {_f(r["write_s"])} / {_f(r["report_no_html_s"])} s, CPU '
+                     f'{_f(r["write_cpu_s"])} / {_f(r["report_no_html_cpu_s"])} s, peak RSS '
+                     f'{_f(r["write_peak_rss_mib"])} / {_f(r["report_no_html_peak_rss_mib"])} '
+                     'MiB'),
     Figure('bag-tools-hour', 'tools on a 1-hour bag, each in its own process', 'bag_scale',
            ('--part', 'tools'),
            lambda r: f'report {_f(r["report_realtime_x"])}×, replay '
                      f'{_f(r["replay_realtime_x"])}× real time; peak RSS '
                      f'{_f(r["tools_peak_rss_mib"])} MiB', readme=True),
+    Figure('bag-writer-shift', "the recorder's writer fed a simulated 4-hour shift of the "
+           '2 kHz topics', 'bag_scale', ('--part', 'writer', '--hours', '4'),
+           lambda r: (lambda w: f'{w["messages_written"]} of {w["messages_fed"]} messages '
+                      f'read back; periodic work {_f(w["periodic_ms_start"])} → '
+                      f'{_f(w["periodic_ms_end"])} ms a call, first → last minute (ratio '
+                      f'{_f(w["periodic_end_over_start"])}, target ≤ 1.5), longest '
+                      f'{_f(w["periodic_ms_max"])} ms; peak RSS {_f(w["peak_rss_mib"])} MiB; '
+                      f'{_f(w["realtime_x"])}× real time')(r['writer'])),
+    Figure('bag-live-hour', 'recording the full node set live (600 s, zstd chunks)', 'bag_scale',
+           ('--part', 'live'),
+           lambda r: (lambda v: f'{v["bytes_per_hour"] / 1e9:.2f} GB per hour; '
+                      f'{v["messages_total"]} messages, {v["messages_lost"]} lost, '
+                      f'{v["messages_dropped"]} dropped; load average '
+                      f'{_f(v["load_avg_1min_mean"])} (max {_f(v["load_avg_1min_max"])}) on '
+                      f'{v["cpus"]} cores')(r['live'])),
 )
 BY_ID = {f.id: f for f in FIGURES}
 

@@ -28,7 +28,8 @@ from system import missing
 
 pytest.importorskip('rclpy', reason='needs the built workspace (make test)')
 _BASE = int(os.environ.get('LADRC_TEST_DOMAIN_BASE', '1'))
-_SPAN = 50 if 'LADRC_TEST_DOMAIN_BASE' in os.environ else 101
+_SPAN = int(os.environ.get('LADRC_TEST_DOMAIN_SPAN',
+                           50 if 'LADRC_TEST_DOMAIN_BASE' in os.environ else 101))
 os.environ['ROS_DOMAIN_ID'] = str(_BASE + (os.getpid() + 7) % _SPAN)  # as tests/ros/conftest.py
 
 ROOT = Path(__file__).resolve().parents[1]

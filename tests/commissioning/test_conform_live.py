@@ -127,13 +127,17 @@ def test_the_sim_node_passes_every_rule(driver_conformance):  # noqa: F811
 def test_the_cia402_drive_passes_every_rule(driver_conformance):  # noqa: F811
     """``ladrc conform --drive cia402``: the CiA 402 driver node with the emulated drive.
 
-    At 1 ms (the period the test bus holds free-running on 2 cores, docs/real-axis.md): the
-    kit's rate and what it counts in sample periods are scaled to it (Tolerances.for_period).
+    At 2 ms here: five Python processes at 1 kHz (the bus server, the emulated drive, the
+    driver, the kit's probe) hold the rate on a quiet 2-core machine (docs/cia402.md, 19 of 19
+    at 1 ms) but not beside `make test`'s other lane with its own real-time node sets (845 Hz
+    in a fresh-clone run); the kit's rate and what it counts in sample periods are scaled to
+    the period (Tolerances.for_period), the watchdog is the stall-measured one of this module.
     """
-    r = driver_conformance(None, *WATCHDOG, drive='cia402', domain_id=DOMAIN)
+    r = driver_conformance(None, *WATCHDOG, '--period-ms', '2', drive='cia402',
+                           domain_id=DOMAIN)
     assert r.passed, r.summary()
     assert r.rules_passed == list(RULE_NAMES)
-    assert abs(r['rate'].figure - 1000.0) <= 50.0
+    assert abs(r['rate'].figure - 500.0) <= 25.0
     assert abs(r['motion_speed'].figure - 1.0) <= 0.1
     assert "'/ladrc_conform_second_commander'" in r['one_commander'].reason
     assert r.extra['driver_exit_code'] == 0 and _gone(r.extra['driver_pid'])
