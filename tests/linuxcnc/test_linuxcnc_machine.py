@@ -7,6 +7,8 @@ real socket and protocol, in the bridge node's place:
 * motion waits for ``spindle.0.at-speed`` (the bridge's "ready to move") before the first feed
   move after M3: XY stands still at the pierce point, however long the height controller takes;
 * ``motion.feed-hold`` (the bridge's feed hold) stops a cut and releases it;
+* the component stalled past the real-time watchdog (SIGSTOP): feed hold and the program
+  paused; the component re-arms LinuxCNC's latching watchdog and the operator's resume goes on;
 * the client going silent: the component's safe outputs (feed hold, no at-speed, beam gate
   closed) and the program paused (``halui.program.pause``), as when the bridge dies;
 * the beam gate follows M3, the bridge's beam and M62 P3 in the servo thread;
@@ -18,6 +20,8 @@ real socket and protocol, in the bridge node's place:
 from __future__ import annotations
 
 from pathlib import Path
+import os
+import signal
 import socket
 import subprocess
 import time
@@ -118,6 +122,20 @@ def linuxcnc(tmp_path):
         assert '0x48414c32' not in keys, 'HAL shared memory left'
 
 
+def resume(lc: LinuxCnc) -> None:
+    """The operator's resume (``halui.program.resume``, on its rising edge)."""
+    for v in ('1', '0'):
+        r = lc.halcmd('setp', 'halui.program.resume', v)
+        assert r.returncode == 0, r.stderr
+        time.sleep(0.05)
+
+
+def hal_u32(lc: LinuxCnc, pin: str) -> int:
+    r = lc.halcmd('getp', pin)
+    assert r.returncode == 0, r.stderr
+    return int(r.stdout.split()[0])
+
+
 def test_linuxcnc_waits_holds_and_pauses_for_the_height_controller(linuxcnc):
     c = Client(linuxcnc.socket_path)
     c.run_until(lambda s: s.flag(p.F_HOMED), 30.0, 'homed')
@@ -159,6 +177,21 @@ def test_linuxcnc_waits_holds_and_pauses_for_the_height_controller(linuxcnc):
     assert all(abs(s.x_mm - x_held) < 1e-6 and s.current_vel_mm_s == 0.0 for s in held)
     c.flags &= ~p.O_FEED_HOLD
     c.run_until(lambda s: abs(s.x_mm - x_held) > 0.5, 5.0, 'moving again after the release')
+    # the component stalled past the real-time watchdog (0.5 s): held, paused, re-armed
+    assert hal_u32(linuxcnc, 'ladrc.watchdog-trips') == 0
+    os.kill(c.hello['pid'], signal.SIGSTOP)
+    try:
+        time.sleep(1.0)
+    finally:
+        os.kill(c.hello['pid'], signal.SIGCONT)
+    c.run_until(lambda s: s.flag(p.F_PAUSED) and s.current_vel_mm_s == 0.0, 10.0,
+                'paused after the stall')
+    assert hal_u32(linuxcnc, 'ladrc.watchdog-trips') == 1
+    c.run_until(lambda s: s.flag(p.F_AT_SPEED_IN) and not s.flag(p.F_FEED_HOLD_IN), 10.0,
+                'the watchdog re-armed')
+    x_paused = c.samples[-1][1].x_mm
+    resume(linuxcnc)
+    c.run_until(lambda s: abs(s.x_mm - x_paused) > 0.5, 10.0, 'moving again after the resume')
     # the bridge gone silent: safe outputs, the program paused
     c.silent = True
     t_silent = time.monotonic()
@@ -193,8 +226,18 @@ def test_linuxcnc_runs_a_program_no_one_here_wrote(tmp_path):
             assert r.returncode == 0, r.stderr
         c = Client(lc.socket_path)
         starts = [0]
+        resumes = [0]
+        resumed_ns = [0]
 
         def answer(s: p.LcncSample) -> bool:
+            if (s.flag(p.F_PAUSED) and not s.flag(p.F_LINK_SAFE)
+                    and s.t_ns > resumed_ns[0] + 500_000_000):
+                # a stall of this loaded machine past the link timeout or the watchdog paused
+                # it (each pause has its trip): the operator resumes, as on a machine
+                assert hal_u32(lc, 'ladrc.safe-trips') > resumes[0], 'a pause without a cause'
+                resumes[0] += 1
+                resume(lc)
+                resumed_ns[0] = time.monotonic_ns()
             spindle = s.flag(p.F_SPINDLE_ON)
             if spindle and not c.flags & p.O_AT_SPEED:
                 starts[0] += 1
@@ -202,6 +245,7 @@ def test_linuxcnc_runs_a_program_no_one_here_wrote(tmp_path):
             return starts[0] > 0 and s.flag(p.F_IDLE) and not s.flag(p.F_RUNNING)
 
         c.run_until(answer, 300.0, 'plasmatest.ngc to its end')
+        print(f'operator resumes after stalls: {resumes[0]}')
         lc.wait_event('end', 30.0)
         events = lc.events()
         assert starts[0] == 15

@@ -22,7 +22,11 @@ as a sample, takes the node's newest outputs and drives its output pins:
 * ``ladrc.height-ready``: the cycle start's permissive (the headless display waits for it);
 * ``ladrc.program-pause`` -> ``halui.program.pause``: a pulse per pause the node asks for;
 * ``ladrc.heartbeat``: toggles every period; a real-time ``watchdog`` in the servo thread holds
-  the feed and closes the beam gate if it stops (this process hung or killed).
+  the feed and closes the beam gate if it stops (this process hung or killed). LinuxCNC's
+  ``watchdog`` latches a timeout until ``enable-in`` goes false and true again: this process
+  reads ``ok-out`` back (``ladrc.watchdog-ok``) and, finding it tripped (it stalled past
+  ``[LADRC]WATCHDOG_S``), counts the trip, pauses a running program as a lost link does and
+  re-arms the watchdog (``watchdog-enable`` low for ``REARM_PERIODS``); the operator resumes.
 
 **Safe outputs.** No node connected, the node silent for ``link_timeout_s``, its stream not
 ours, or this process ending: feed hold, no at-speed, beam off, not ready
@@ -60,6 +64,7 @@ IN_BIT = {'spindle-on': p.F_SPINDLE_ON, 'thc-off': p.F_THC_OFF, 'torch-off': p.F
 OUT_BIT = {'at-speed': p.O_AT_SPEED, 'feed-hold': p.O_FEED_HOLD, 'beam-on': p.O_BEAM,
            'height-ready': p.O_HEIGHT_READY}
 SEND_BUFFER_MAX = 64 * 1024  # a node that reads nothing for this much: samples are dropped
+REARM_PERIODS = 10  # watchdog-enable low this many periods (several servo periods) to re-arm it
 
 
 class Component:
@@ -86,6 +91,8 @@ class Component:
         self.pin_link = self.comp.newpin('link-ok', hal.HAL_BIT, hal.HAL_OUT)
         self.pin_dropped = self.comp.newpin('samples-dropped', hal.HAL_U32, hal.HAL_OUT)
         self.pin_safe_trips = self.comp.newpin('safe-trips', hal.HAL_U32, hal.HAL_OUT)
+        self.pin_watchdog_ok = self.comp.newpin('watchdog-ok', hal.HAL_BIT, hal.HAL_IN)
+        self.pin_watchdog_trips = self.comp.newpin('watchdog-trips', hal.HAL_U32, hal.HAL_OUT)
         self.apply(p.SAFE_OUTPUTS)
         self.comp.ready()
         self.socket_path = socket_path
@@ -112,6 +119,9 @@ class Component:
         self.seq = 0
         self.dropped = 0
         self.safe_trips = 0
+        self.watchdog_armed = False  # ok-out seen true since the last (re-)arming
+        self.watchdog_trips = 0
+        self.rearm_end_ns = 0        # watchdog-enable low until then
         self.running = True
         self.hello = hello_info()
 
@@ -212,6 +222,14 @@ class Component:
         self.exchange(sample, now_ns)
         live = (self.client is not None and self.last_outputs_ns > 0
                 and now_ns - self.last_outputs_ns <= self.link_timeout_ns)
+        watchdog_ok = bool(self.pin_watchdog_ok.get())
+        if self.watchdog_armed and not watchdog_ok:  # it timed out on us (a stall): latched
+            self.watchdog_trips += 1
+            self.watchdog_armed = False
+            self.rearm_end_ns = now_ns + REARM_PERIODS * int(self.period_s * 1e9)
+            live = False  # a trip as a lost link: safe outputs, a running program paused
+        elif watchdog_ok and now_ns >= self.rearm_end_ns:
+            self.watchdog_armed = True
         running = sample.flag(p.F_RUNNING) and not sample.flag(p.F_PAUSED)
         if live:
             self.apply(self.outputs)
@@ -228,9 +246,10 @@ class Component:
         self.pin_pause.set(now_ns < self.pulse_end_ns)
         self.pin_link.set(live)
         self.pin_heartbeat.set(not self.pin_heartbeat.get())
-        self.pin_watchdog_enable.set(True)
+        self.pin_watchdog_enable.set(now_ns >= self.rearm_end_ns)
         self.pin_dropped.set(self.dropped)
         self.pin_safe_trips.set(self.safe_trips)
+        self.pin_watchdog_trips.set(self.watchdog_trips)
 
     def run(self) -> None:
         """Step every ``period_s`` until stopped (a late step is not repeated)."""
