@@ -19,8 +19,8 @@ real socket and protocol, in the bridge node's place:
 
 from __future__ import annotations
 
-from pathlib import Path
 import os
+from pathlib import Path
 import signal
 import socket
 import subprocess
@@ -123,7 +123,7 @@ def linuxcnc(tmp_path):
 
 
 def resume(lc: LinuxCnc) -> None:
-    """The operator's resume (``halui.program.resume``, on its rising edge)."""
+    """Resume the program as the operator does (``halui.program.resume``, its rising edge)."""
     for v in ('1', '0'):
         r = lc.halcmd('setp', 'halui.program.resume', v)
         assert r.returncode == 0, r.stderr
