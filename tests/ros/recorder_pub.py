@@ -52,9 +52,11 @@ def main() -> None:
     events.publish(FollowEvent(tick=0, kind=FollowEvent.PARAMETERS, text='h_s: 0.0005\n'))
     params.publish(String(data='h_s: 0.0005\n'))
     scenario.publish(String(data='name: recorder_test\n'))
-    deadline = time.monotonic() + 30.0
-    while (any(p.get_subscription_count() == 0 for p in pubs.values())
-           and time.monotonic() < deadline):
+    deadline = time.monotonic() + 120.0  # a loaded machine starts a recorder slowly
+    while any(p.get_subscription_count() == 0 for p in pubs.values()):
+        if time.monotonic() > deadline:
+            print('no recorder subscribed within 120 s', file=sys.stderr, flush=True)
+            sys.exit(1)
         time.sleep(0.05)
     time.sleep(0.5)  # let the reliable readers finish matching
     print('publishing', flush=True)

@@ -45,8 +45,17 @@ def procs():
 def _recorder(bag: Path, procs: list, storage: str = 'mcap') -> subprocess.Popen:
     if not RECORDER.exists():
         pytest.skip('recorder console script not installed (build the workspace)')
-    return _start([str(RECORDER), '--ros-args', '-p', f'output:={bag}', '-p',
-                   f'storage:={storage}', '-p', 'reliable:=true'], procs)
+    rec = _start([str(RECORDER), '--ros-args', '-p', f'output:={bag}', '-p',
+                  f'storage:={storage}', '-p', 'reliable:=true'], procs)
+    # its bag exists (empty, valid) once it subscribes: the tests start from there, however
+    # long a loaded machine takes to start it
+    deadline = time.monotonic() + 120.0
+    while not (bag / 'metadata.yaml').exists():
+        if rec.poll() is not None:
+            raise AssertionError(f'recorder ended: {rec.stderr.read()[-2000:]}')
+        assert time.monotonic() < deadline, 'the recorder did not start within 120 s'
+        time.sleep(0.05)
+    return rec
 
 
 def _wait_line(p: subprocess.Popen, word: str, timeout_s: float = 60.0) -> str:
