@@ -8,7 +8,9 @@ commit and on which machine (cores, CPU) it was measured. The benches (``bench/*
 their figures as the last line of JSON; this script runs them (all, those marked quick with
 ``--quick``, or the ones named with ``--only``), takes the figures out of that line, and writes
 ``docs/figures.json`` (the data) and ``docs/figures.md`` (the table, rendered from the data),
-keeping the rows it did not run as they were. A full run also regenerates docs/quality.md's
+keeping the rows it did not run as they were. A few figures are printed by a tool of the project
+rather than a bench (``ladrc conform``, ``bringup``: ``TOOLS``), run the same way; ``OUT`` in
+such a command is a fresh folder of the run. A full run also regenerates docs/quality.md's
 suite tables (``ladrc suite --law-only``, between ``suite:begin`` and ``suite:end``). The
 README's short table (between the
 ``figures:begin`` and ``figures:end`` markers) is rendered from the same data. Docs that cite a
@@ -35,6 +37,7 @@ import platform
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from typing import Any, Callable
 
@@ -43,15 +46,157 @@ DOCS = ROOT / 'docs'
 DATA = DOCS / 'figures.json'
 TABLE = DOCS / 'figures.md'
 README = ROOT / 'README.md'
+TOOLS = {'ladrc': 'ladrc_tools.cli', 'bringup': 'ladrc_tools.bringup.bringup'}
+"""Figures printed by a tool of the project instead of a bench: the tool's module."""
+OUT = '{out}'
+"""In a figure's arguments: a fresh folder of the run (``OUT`` in the command shown)."""
 
 
 def _f(x: Any, nd: int = 3) -> str:
-    """Format a number with ``nd`` significant digits (ints as they are)."""
+    """Format a number with ``nd`` significant digits (ints, and larger numbers, whole)."""
     if isinstance(x, bool) or x is None:
         return str(x)
     if isinstance(x, int):
         return f'{x:,}'.replace(',', ' ')
+    if abs(x) >= 10 ** nd:  # whole units rather than an exponent
+        return f'{x:,.0f}'.replace(',', ' ')
     return f'{x:.{nd}g}'
+
+
+def _span(values: list, nd: int = 3) -> str:
+    """Return ``a–b`` for the least and largest of ``values`` (``a`` when equal, ``–`` if none)."""
+    vals = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    if not vals:
+        return '–'
+    lo, hi = _f(min(vals), nd), _f(max(vals), nd)
+    return lo if lo == hi else f'{lo}–{hi}'
+
+
+def _state(n: Any) -> str:
+    """Return the follow state's name (``FollowStatus.STATE_*``), the number if unknown."""
+    try:
+        from ladrc_contract.codes import FollowState
+
+        return FollowState(n).name
+    except (ImportError, ValueError, TypeError):
+        return str(n)
+
+
+def _hold(run: dict, kind: str, what: str = 'count') -> Any:
+    """Return a job run's hold figure (``holds``: corner_lock, void_lock, hold, edge_ahead)."""
+    return ((run.get('holds') or {}).get(kind) or {}).get(what)
+
+
+CONFORM = (('rate', 'rate', ' Hz', 4), ('jitter', 'arrival p99', ' ms', 3),
+           ('seq_increments', 'wrong seq steps', '', 3),
+           ('stamps_not_future', 'stamp after reception at most', ' ms', 2),
+           ('stamp_age', 'stamp age median', ' ms', 2), ('drive_ready', 'gap', ' mm', 4),
+           ('enable_false_holds', 'travel with enable false', ' mm', 3),
+           ('motion_speed', 'encoder slope / command', '', 4),
+           ('velocity_feedback', 'velocity feedback / encoder slope', '', 4),
+           ('gap_tracks_encoder', 'gap / encoder slope', '', 4),
+           ('watchdog_fault', 'watchdog fault after', ' ms', 3),
+           ('watchdog_stop', 'at rest after', ' ms', 3),
+           ('one_commander', 'second commander refused after', ' ms', 3),
+           ('motion_bag', 'bag', ' messages', 6))
+"""The conformance rules a figure row shows: rule, what its figure is, unit, digits."""
+
+
+def _conform(r: dict) -> str:
+    """Render ``ladrc conform``'s last line: the verdict, then each rule's figure."""
+    figs = r['figures']
+    failed = f' (failed: {", ".join(r["rules_failed"])})' if r['rules_failed'] else ''
+    return (f'{r["rules_passed"]} of {r["rules_total"]} rules passed{failed}; '
+            + ', '.join(f'{what} {_f(figs[k], nd)}{unit}' for k, what, unit, nd in CONFORM
+                        if k in figs))
+
+
+def _pair(values: list, nd: int = 3) -> str:
+    """Return ``first / span of the rest``: a headless figure beside its live runs'."""
+    return f'{_f(values[0], nd)} / {_span(values[1:], nd)}'
+
+
+def _linuxcnc_side(r: dict) -> str:
+    """Each job headless vs its LinuxCNC runs to the end (``bench/linuxcnc_jobs.py``)."""
+    out = []
+    for n, e in r['jobs'].items():
+        lc = [x for rs in e['linuxcnc'].values() for x in rs if x.get('finished')]
+        if not lc:
+            out.append(f'{n}: no LinuxCNC run to its end')
+            continue
+        runs = [e['headless'], *lc]
+        holds = {k: _pair([_hold(x, k) for x in runs])
+                 for k in ('corner_lock', 'hold', 'edge_ahead', 'void_lock')}
+        out.append(
+            f'{n} (headless / LinuxCNC, {len(lc)} runs): job '
+            f'{_pair([x.get("job_time_s") for x in runs], 4)} s, corner lock '
+            f'{holds["corner_lock"]} holds, commanded hold (M62 P2) {holds["hold"]}, edge ahead '
+            f'{holds["edge_ahead"]}, void lock {holds["void_lock"]}, corner excursion '
+            f'{_pair([x.get("corner_max_down_mm") for x in runs])} mm, min true gap / target '
+            f'{_pair([x.get("min_gap_over_target_cutting") for x in runs])}')
+    return '; '.join(out)
+
+
+def _job_run(x: dict) -> str:
+    """One job run's figures: to the end or why not, time, contacts, closest approach."""
+    end = 'to the end' if x.get('finished') else f'aborted ({str(x.get("aborted"))[:80]})'
+    return (f'{end}, {_f(x.get("job_time_s"), 4)} s, {x.get("pierces")} pierces, '
+            f'{x.get("contacts")} contacts, {x.get("faults")} faults, min true gap / target '
+            f'{_f(x.get("min_gap_over_target_cutting"))}, corner excursion '
+            f'{_f(x.get("corner_max_down_mm"))} mm, corner lock {_hold(x, "corner_lock")} '
+            f'({_f(_hold(x, "corner_lock", "seconds"))} s), void lock {_hold(x, "void_lock")}')
+
+
+def _fault_rows_linuxcnc(r: dict) -> str:
+    """Render the LinuxCNC rows of the fault matrix (``--only linuxcnc``)."""
+    rows = [
+        f'{x["row"]}: {"CONTACT" if x.get("contact") else "no contact"}, down '
+        f'{_f(x.get("down_after_mm"))} mm and up {_f(x.get("lift_mm"))} mm after the fault, '
+        f'controller {_state(x.get("final_state"))}'
+        + (', held on the stale CNC' if x.get('stale_hold') else '')
+        + f', LinuxCNC paused {x.get("paused")}, feed hold {x.get("feed_hold")}, link ok '
+          f'{x.get("link_ok")}, job aborted: {str(x.get("job_aborted"))[:60]}'
+        for x in r['rows']]
+    if r.get('linuxcnc_rows_not_run'):
+        rows.append(f'{r["linuxcnc_rows_not_run"]} rows not run')
+    return '; '.join(rows)
+
+
+def _linuxcnc_safety(r: dict) -> str:
+    """Render each job's verdict under LinuxCNC, the bridge's timing, why runs stopped."""
+    out = []
+    for n, e in r['jobs'].items():
+        runs = [x for rs in e['linuxcnc'].values() for x in rs]
+        stopped = ''.join(
+            f', {k} stopped: ' + ' / '.join(str(x.get('aborted'))[:50] for x in rs
+                                             if not x.get('finished'))
+            for k, rs in e['linuxcnc'].items() if any(not x.get('finished') for x in rs))
+        out.append(
+            f'{n}: {e["verdict"] or "ok"}, moved before ready '
+            f'{sum(x.get("bridge_moved_before_ready") or 0 for x in runs)}, samples late p99 '
+            f'{_span([x.get("bridge_sample_delay_ms_p99") for x in runs])} ms, component gap '
+            f'max {_span([x.get("bridge_component_max_gap_ms") for x in runs])} ms{stopped}')
+    return '; '.join(out) + f'; all ok: {r["all_ok"]}'
+
+
+def _fleet_flags(r: dict) -> str:
+    """Render the flags of ``bench/fleet_scaling.py`` against the fleet's truth."""
+    deg = r['degraded_flagged']
+    return (f'degraded machines flagged by their rule: {sum(d["found"] for d in deg.values())} '
+            f'of {len(deg)} ('
+            + ', '.join(f'{d["how"]}: {" + ".join(d["flagged_by"]) or "none"}'
+                        for d in deg.values())
+            + f'); healthy machines flagged: {len(r["healthy_flagged"])}'
+            + ''.join(f', {m}: {" + ".join(v)}' for m, v in r['healthy_flagged'].items()))
+
+
+def _interval(r: dict) -> str:
+    """Render ``bench/identified_plant.py``'s error RMS ranges over the ±1σ interval."""
+    law = {'ladrc': 'LADRC', 'pid': 'PID'}
+    return '; '.join(
+        f'{k.removesuffix("_rms_range_mm").rsplit("_", 1)[0]}, '
+        f'{law.get(k.removesuffix("_rms_range_mm").rsplit("_", 1)[1], "?")}: '
+        f'{_f(v[0])}–{_f(v[1])} mm' for k, v in r.items() if k.endswith('_rms_range_mm'))
 
 
 @dataclass(frozen=True)
@@ -200,6 +345,14 @@ FIGURES: tuple[Figure, ...] = (
                      f'{_f(r["sync_jitter_p99_us"])} µs, sensor → command p99 '
                      f'{_f(r["latency_p99_ms"])} ms, {r["contacts"]} contacts, bus load '
                      f'{100 * r["bus_load_1mbit"]:.0f} % at 1 Mbit/s'),
+    Figure('conform-sim', "driver conformance kit on the sim node (the product's 5 ms "
+           'watchdog)', 'ladrc', ('conform', '--sim', '-o', OUT), _conform),
+    Figure('conform-cia402', 'driver conformance kit on the CiA 402 path (driver node, emulated '
+           'drive, test bus), 1 ms', 'ladrc', ('conform', '--drive', 'cia402', '-o', OUT),
+           _conform),
+    Figure('cia402-job', '`plate_holes` on the CiA 402 path in lock step (0.5 ms), unpaced',
+           'bringup', ('--drive', 'cia402', '--job', 'plate_holes', '--lockstep', '--unpaced'),
+           lambda r: f'{_job_run(r)}; {_f(r.get("realtime_x"))}× real time'),
     Figure('fault-matrix', 'fault-injection matrix (headless, live, CiA 402)', 'fault_matrix',
            (),
            lambda r: f'{r["contacts"]} contacts, {r["node_crashes"]} node crashes, '
@@ -217,6 +370,20 @@ FIGURES: tuple[Figure, ...] = (
            lambda r: f'at most {_f(r["recorder_kill_loss_s"])} s of the bag lost before a '
                      f'recorder SIGKILL (worst of 3); {r["spurious_faults_under_load"]} '
                      'spurious faults following under two busy loops'),
+    Figure('fault-matrix-canopen', 'fault-injection matrix, CiA 402 rows: contact, least true '
+           'gap, last motion after the injection, crashes, the faults reported', 'fault_matrix',
+           ('--only', 'canopen'),
+           lambda r: '; '.join(
+               f'{x["row"].removeprefix("CiA 402: ")}: '
+               f'{"CONTACT" if x.get("contact") else "no contact"}, least true gap '
+               f'{_f(x.get("min_true_gap_mm"))} mm, last motion {_f(x.get("stop_ms"))} ms after, '
+               f'{x.get("crashes")} crashes, follow fault "{(x.get("follow_fault") or "")[:70]}", '
+               f'drive fault "{(x.get("drive_fault") or "")[:70]}"' for x in r['rows'])
+           + f'; node crashes {r["canopen_node_crashes"]}'),
+    Figure('fault-matrix-linuxcnc', 'fault-injection matrix, LinuxCNC rows (`bringup --cnc '
+           "linuxcnc --fault`): contact, the nozzle after the fault, the controller's final "
+           "state, LinuxCNC's side", 'fault_matrix', ('--only', 'linuxcnc'),
+           _fault_rows_linuxcnc),
     Figure('linuxcnc-jobs', 'shipped jobs under LinuxCNC (bringup --cnc linuxcnc), 2 runs each '
            'with the timing allowance and with the product timing', 'linuxcnc_jobs', (),
            lambda r: '; '.join(
@@ -226,6 +393,22 @@ FIGURES: tuple[Figure, ...] = (
                f'{e["ran_to_end"].get("product", [0, 0])[1]} product), '
                f'{sum(x.get("contacts") or 0 for rs in e["linuxcnc"].values() for x in rs)} '
                'contacts' for n, e in r['jobs'].items())),
+    Figure('linuxcnc-safety', 'shipped jobs under LinuxCNC: the verdict, XY moved before '
+           "ready, the bridge's samples late (p99) and the component's longest gap, why runs "
+           'stopped', 'linuxcnc_jobs', (),
+           _linuxcnc_safety),
+    Figure('linuxcnc-side-by-side', 'shipped jobs headless (`ladrc job --separate-cnc`) / under '
+           'LinuxCNC (the runs to their end): job time, holds by kind, corner excursion, least '
+           'true gap / target while cutting', 'linuxcnc_jobs', (), _linuxcnc_side),
+    Figure('linuxcnc-blend', "a job under LinuxCNC with the post-processor's G64 P0.05 and with "
+           'G61 (exact stop)', 'linuxcnc_jobs', (),
+           lambda r: f'{r["blend"]["job"]}: G64 P0.05 {_job_run(r["blend"]["g64"])}; G61 '
+                     f'{_job_run(r["blend"]["g61"])}'),
+    Figure('linuxcnc-foreign', "LinuxCNC's own plasmatest.ngc as it is, under LinuxCNC with the "
+           'height controller', 'linuxcnc_jobs', (),
+           lambda r: f'{_job_run(r["foreign"])}, {r["foreign"].get("bridge_leapfrogs")} '
+                     'leapfrogs, XY moved before ready '
+                     f'{r["foreign"].get("bridge_moved_before_ready")}'),
     Figure('view-load', "the live view's cost to the loop (showcase live, 2 rounds without / "
            'with --view)', 'view_load', (),
            lambda r: f'{_f(r["rate_hz_without"], 4)} / {_f(r["rate_hz_with"], 4)} ticks/s, '
@@ -233,6 +416,16 @@ FIGURES: tuple[Figure, ...] = (
                      f'{_f(r["period_p99_us_with"])} µs; status at {_f(r["status_rate_hz"])} '
                      f'Hz to the client, every fault reason received: '
                      f'{r["all_fault_reasons_received"]}; view CPU {_f(r["view_cpu_pct"])} %'),
+    Figure('view-load-runs', "the live view's cost, each run in order (without / with --view): "
+           "loop rate, period p99 and max, drive watchdog trips, the machine's load average; "
+           "the view's CPU, status and events received", 'view_load', (),
+           lambda r: '; '.join(
+               f'{"with" if x["view"] else "without"}: {_f(x.get("rate_hz"), 4)} Hz, period '
+               f'p99 {_f(x.get("period_p99_us"))} µs, max {_f(x.get("period_max_us"))} µs, '
+               f'{x.get("watchdog_trips")} watchdog trips, load {_f(x.get("load_1min"), 2)}'
+               + (f', view CPU {_f(x["view_cpu_pct"])} %, status {x["status_received"]} '
+                  f'({_f(x["status_rate_hz"])}/s), events {x["events_received"]} of '
+                  f'{x["events"]}' if x['view'] else '') for x in r['runs'])),
     Figure('html-report-hour', 'zoomable HTML report of a 1-hour bag', 'html_report', (),
            lambda r: f'{r["html_bytes"] / 1e6:.1f} MB, drawn in {_f(r["chromium_render_s"])} s '
                      f'in headless Chromium; a 50 ms window shows {r["points_in_50ms_window"]}'
@@ -263,6 +456,60 @@ FIGURES: tuple[Figure, ...] = (
                       f'{v["messages_dropped"]} dropped; load average '
                       f'{_f(v["load_avg_1min_mean"])} (max {_f(v["load_avg_1min_max"])}) on '
                       f'{v["cpus"]} cores')(r['live'])),
+    Figure('fleet-scaling', '`ladrc fleet` on a generated fleet (8 machines × 5 days × 4 bags '
+           'of 8 s): generate, read on 1 and 2 workers without cache, per bag vs `ladrc report`, '
+           'worker memory', 'fleet_scaling', (),
+           lambda r: f'{r["bags"]} bags (seed {r["seed"]}): generated in '
+                     f'{_f(r["generate_s_2_workers"])} s on 2 workers; read in '
+                     f'{_f(r["wall_s_1_worker"])} s on 1 worker, {_f(r["wall_s_2_workers"])} s on '
+                     f'2 ({_f(r["speedup"])}×); per bag {_f(r["per_bag_s"])} s (the fleet task) '
+                     f'vs {_f(r["report_per_bag_s"])} s (`ladrc report` in its own process, plots '
+                     f'included); worker peak {_f(r["worker_peak_rss_mb"])} MB'),
+    Figure('fleet-flags', "`ladrc fleet`'s flags on the generated fleet against its truth file",
+           'fleet_scaling', (),
+           _fleet_flags),
+    Figure('sweep-engine', "`ladrc tune`'s sweep (about 5 000 points × every batchable scenario) "
+           'in one batch on one core vs in parts on a local cluster of 2 workers',
+           'sweep_engine', ('--sets', '5000'),
+           lambda r: f'{r["points"]} points × {r["scenarios"]} scenarios: one core '
+                     f'{_f(r["one_core_s"])} s (peak {_f(r["driver_peak_rss_mb"])} MB), the '
+                     f'engine {_f(r["engine_s"])} s on {r["workers"]} workers (peak '
+                     f'{_f(r["worker_peak_rss_mb"])} MB a worker); scores, verdicts and fronts '
+                     f'identical: {r["identical"]}; {r["passed"]} through the gate, {r["front"]} '
+                     'on the front'),
+    Figure('sweep-engine-large', "`ladrc tune`'s sweep of about 100 000 points × 3 scenarios "
+           '(one of each class) on the engine alone', 'sweep_engine',
+           ('--sets', '100000', '--engine-only', '--scenarios', 'step,sine_5hz,edge_step_3_1'),
+           lambda r: f'{r["points"]} points × {r["scenarios"]} scenarios on {r["workers"]} '
+                     f'workers: {_f(r["engine_s"])} s; {r["passed"]} through the gate, '
+                     f'{r["front"]} on the front; peak {_f(r["worker_peak_rss_mb"])} MB a worker, '
+                     f'{_f(r["driver_peak_rss_mb"])} MB the driver'),
+    Figure('identified-plant', "the shipped set on the notes' identified plant (§1.2): the "
+           'linear loop per gain reading, the closed loop headless, 300 s on a flat sheet',
+           'identified_plant', ('--long-s', '300'),
+           lambda r: f'LADRC phase margin {_f(r["ladrc_pm_deg_gain_b0_1"])}° at gain 1/16.75, '
+                     f'{_f(r["ladrc_pm_deg_gain_1"])}° at gain 1 (delay margin '
+                     f'{_f(r["ladrc_dm_ms_gain_1"])} ms, crossover {_f(r["ladrc_fc_hz_gain_1"])} '
+                     f'Hz; gain 0.01: crossover {_f(r["ladrc_fc_hz_gain_0_01"])} Hz); '
+                     f'`identified_plant` error RMS LADRC {_f(r["plant_rms_mm_ladrc"])} / PID '
+                     f'{_f(r["plant_rms_mm_pid"])} mm (LADRC at gain 1: '
+                     f'{_f(r["plant_rms_mm_ladrc_gain_1"])} mm); PID at gain 1: '
+                     f'{r["pid_gain_1_collisions"]} collisions; LADRC at gain 1 with 2 ticks of '
+                     f'dead time: {r["ladrc_gain_1_dead_2_fault"][:70] or "no fault"}; slowest '
+                     f'closed-loop pole {_f(r["slow_pole_rad_s"])} rad/s, plant zero '
+                     f'{_f(r["plant_zero_rad_s"])} rad/s; {_f(r["long_s"])} s on a flat sheet: '
+                     f'error RMS {_f(r["long_error_rms_mm"])} mm, mean command over the last 10 s '
+                     f'{_f(r["long_last10s_mean_command_mm_s"])} mm/s'),
+    Figure('identified-plant-interval', "the identified plant at the ends of the notes' ±1σ "
+           'interval and its corners: error RMS range per scenario and law', 'identified_plant',
+           ('--long-s', '300'),
+           _interval),
+    Figure('loop-vs-sim', 'loop analysis vs the headless closed loop: largest deviation of the '
+           'sheet-to-nozzle response over the sheet sines', 'loop_vs_sim', (),
+           lambda r: '; '.join(f'{k}: {_f(v["max_db"], 2)} dB / {_f(v["max_deg"], 2)}°'
+                               for k, v in r.items() if k != 'frequencies_hz')
+           + f' ({len(r["frequencies_hz"])} sines, {_f(min(r["frequencies_hz"]))}–'
+             f'{_f(max(r["frequencies_hz"]))} Hz)'),
 )
 BY_ID = {f.id: f for f in FIGURES}
 
@@ -293,9 +540,13 @@ def commit() -> str:
 
 
 def run_bench(bench: str, args: tuple[str, ...]) -> dict:
-    """Run ``bench/BENCH.py ARGS``; return its last line of JSON (RuntimeError if none)."""
-    proc = subprocess.run([sys.executable, str(ROOT / 'bench' / f'{bench}.py'), *args],
-                          cwd=ROOT, capture_output=True, text=True, check=False)
+    """Run ``bench/BENCH.py ARGS`` (or the tool ``BENCH``); return its last line of JSON."""
+    with tempfile.TemporaryDirectory(prefix='figures-') as tmp:
+        argv = [a.replace(OUT, str(Path(tmp) / 'out')) for a in args]
+        head = (['-m', TOOLS[bench]] if bench in TOOLS
+                else [str(ROOT / 'bench' / f'{bench}.py')])
+        proc = subprocess.run([sys.executable, *head, *argv], cwd=ROOT, capture_output=True,
+                              text=True, check=False)
     lines = proc.stdout.strip().splitlines()
     if proc.returncode != 0 or not lines:
         tail = (proc.stderr.strip().splitlines() or ['no output'])[-1]
@@ -305,7 +556,9 @@ def run_bench(bench: str, args: tuple[str, ...]) -> dict:
 
 def command(f: Figure) -> str:
     """Return the command that prints the figure."""
-    return ' '.join(('scripts/in-env python', f'bench/{f.bench}.py', *f.args))
+    head = (('scripts/in-env', f.bench) if f.bench in TOOLS
+            else ('scripts/in-env python', f'bench/{f.bench}.py'))
+    return ' '.join((*head, *(a.replace(OUT, 'OUT') for a in f.args)))
 
 
 def _cell(text: str) -> str:
@@ -438,8 +691,6 @@ def main() -> int:
     if out.resolve() == DOCS.resolve() and update_readme(data):
         written.append(str(README))
     if out.resolve() == DOCS.resolve() and not a.quick and not ids and not a.dry_run:
-        import tempfile
-
         with tempfile.TemporaryDirectory(prefix='figures-') as tmp:
             if update_quality(Path(tmp)):
                 written.append(str(QUALITY))
