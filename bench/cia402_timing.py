@@ -13,9 +13,10 @@ the period, the recorder), the controller following at 1 mm over a 0.3 mm 1 Hz s
   the driver's own counts (TPDOs after its wait but before the next SYNC; never);
 * ``sync_jitter_p99_us``: p99 of |SYNC interval - period| (the samples' stamps are the SYNC
   times);
-* ``latency_p99_ms``: sensor -> command, the sample's SYNC time to the command answering it
-  (its stamp, when the controller computed it); ``latency_received_p99_ms``: to the recorder's
-  reception of that command (what the driver also waits for);
+* ``latency_p99_ms``: sensor -> command, the sample's SYNC time to the first command answering
+  it (its stamp, when the controller computed it; a tick without a new sample answers the old
+  one again, which is not that sample's latency); ``latency_received_p99_ms``: to the
+  recorder's reception of that command (what the driver also waits for);
 * ``frames_per_s``: RPDO + SYNC + two TPDOs per cycle (heartbeats and EMCYs aside), and the
   bus load of those frames at 1 Mbit/s (``bus_load_1mbit``: bits with worst-case stuffing);
 * ``contacts``, ``faults`` (FAULT entries of the controller) and ``ran_to_end``.
@@ -95,10 +96,13 @@ def one(period_ms: float, duration: float, folder: Path, domain: int) -> dict:
     by_seq = dict(zip(fb['seq'].tolist(), t_fb.tolist(), strict=True))
     lat, lat_rx = [], []
     t_cmd = stamps_s(cmd)
+    # a sample's latency is its first answer's (a tick without a new sample answers it again)
+    answered: set[int] = set()
     for s, tc, rx in zip(cmd['sample_seq'].tolist(), t_cmd.tolist(),
                          (cmd['timestamp_ns'] * 1e-9).tolist(), strict=True):
         ts = by_seq.get(s)
-        if ts is not None:
+        if ts is not None and s not in answered:
+            answered.add(s)
             lat.append(tc - ts)
             lat_rx.append(rx - ts)
     counts: dict = {}

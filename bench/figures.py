@@ -6,7 +6,8 @@
 Each figure is one row: what it is, its value, the command that prints it, and when, at which
 commit and on which machine (cores, CPU) it was measured. The benches (``bench/*.py``) print
 their figures as the last line of JSON; this script runs them (all, those marked quick with
-``--quick``, or the ones named with ``--only``), takes the figures out of that line, and writes
+``--quick``, or the ones named with ``--only``, with every row their run also fills), takes the
+figures out of that line, and writes
 ``docs/figures.json`` (the data) and ``docs/figures.md`` (the table, rendered from the data),
 keeping the rows it did not run as they were. A few figures are printed by a tool of the project
 rather than a bench (``ladrc conform``, ``bringup``: ``TOOLS``), run the same way; ``OUT`` in
@@ -290,9 +291,11 @@ FIGURES: tuple[Figure, ...] = (
     Figure('seed-fal', 'nonlinear observer (fal) vs linear: error RMS, chatter',
            'seed_experiments', (),
            lambda r: '; '.join(
-               f'{x["scenario"]}, {x["setting"]}: RMS {_f(x["error_rms_mm"])} mm, chatter '
-               f'{_f(x["chatter_mm_s"])} mm/s' for x in r['rows']
-               if x['experiment'] == 'nonlinear observer')),
+               f'{x["scenario"]}, {x["setting"]}: ' + ', '.join(
+                   f'{what} {_f(x[k])}{unit}' for k, what, unit in (
+                       ('error_rms_mm', 'RMS', ' mm'), ('chatter_mm_s', 'chatter', ' mm/s'),
+                       ('gap_ratio', 'gap ratio', '')) if k in x)
+               for x in r['rows'] if x['experiment'] == 'nonlinear observer')),
     Figure('seed-kalman', 'Kalman filter in the loop (plain, gated): error RMS / max, chatter',
            'seed_experiments', (),
            lambda r: '; '.join(
@@ -661,6 +664,9 @@ def main() -> int:
         return 2
     chosen = ([BY_ID[i] for i in ids] if ids else
               [f for f in FIGURES if f.quick] if a.quick else list(FIGURES))
+    # one run of a bench fills every figure it prints (the rows sharing its command)
+    runs = {(f.bench, f.args) for f in chosen}
+    chosen = [f for f in FIGURES if (f.bench, f.args) in runs]
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     data_file, table_file = out / DATA.name, out / TABLE.name
