@@ -344,6 +344,10 @@ class CncFuzz(Corrupt):
         return u
 
 
+EMCY_T_S = 15.0
+"""The CiA 402 EMCY row: the emulated drive raises it at this time of the run (after the follow
+is established, which takes more than 5 s; the row fails where it was not yet)."""
+
 LINUXCNC_FAULTS = (('kill-linuxcnc', 'LinuxCNC SIGKILLed while cutting'),
                    ('kill-bridge', 'LinuxCNC bridge SIGKILLed while cutting'),
                    ('estop', 'LinuxCNC estop while cutting'))
@@ -949,14 +953,15 @@ def canopen_rows() -> dict:
     scenario = str(SCENARIOS / 'follow_sine.yaml')
     fault_scenario = Path(tempfile.mkdtemp(prefix='fault-canopen-')) / 'follow_sine_emcy.yaml'
     fault_scenario.write_text((SCENARIOS / 'follow_sine.yaml').read_text().replace(
-        'name: follow_sine', 'name: follow_sine_emcy') + 'timeline:\n  - {t_s: 8.0, do: drive, '
-        'enabled: true, fault: true, error_code: 0x8611}\n', encoding='utf-8')
+        'name: follow_sine', 'name: follow_sine_emcy') + f'timeline:\n  - {{t_s: {EMCY_T_S}, '
+        'do: drive, enabled: true, fault: true, error_code: 0x8611}\n', encoding='utf-8')
 
     def stamp_s(r) -> tuple:
         return (r[0] + r[1] * 1e-9, *r[2:])
 
     def one(name: str, inject, scenario_file: str = scenario, survivors=('follow', 'sim',
-                                                                        'driver')) -> dict:
+                                                                        'driver'),
+            until_t_s: float | None = None) -> dict:
         os.environ['ROS_DOMAIN_ID'] = str(next(domains))
         nodes, probe, server = NodeProcesses(), Probe(f'fault_canopen_{len(ROWS)}'), None
         t_sigkill = None
@@ -1001,6 +1006,12 @@ def canopen_rows() -> dict:
             killed = inject(nodes, server)
             if killed:
                 t_sigkill = time.monotonic()
+            if until_t_s is not None:  # the scenario injects it at this time of the run
+                if status[-1][0] >= until_t_s:
+                    raise RuntimeError(f'{name}: following only at {status[-1][0]:.1f} s, '
+                                       f'after the injection at {until_t_s:g} s')
+                probe.spin_until(lambda: status[-1][0] >= until_t_s, 60.0)
+                t_inject = time.time()  # (its status seen: the times below count from it)
             probe.spin_for(2.0)
             tr = np.asarray(truth[:], dtype=float)
             contact = bool(tr.size and (tr[:, 1] <= 0.0).any())
@@ -1054,7 +1065,7 @@ def canopen_rows() -> dict:
         survivors=('follow', 'driver'))
     one('bus server SIGKILL', lambda nodes, server: os.kill(server.pid, signal.SIGKILL) or True)
     one('EMCY 0x8611 following error raised by the drive', lambda nodes, server: None,
-        scenario_file=str(fault_scenario))
+        scenario_file=str(fault_scenario), until_t_s=EMCY_T_S)
     one('a second master: RPDO1 at -50 mm/s, 1 kHz for 1 s',
         lambda nodes, server: rogue(server, 'master', 1.0, 0.001))
     one('random frames on the bus, 2 kHz for 2 s',
