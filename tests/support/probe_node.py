@@ -65,6 +65,8 @@ import sys
 import time
 import traceback
 
+MATCH_WAIT_S = 5.0  # a new publisher waits this long at most for a subscription to match
+
 
 class Timeout(Exception):
     """A wait of a command ran out (reported as kind 'timeout')."""
@@ -300,6 +302,13 @@ class ProbeNode:
         if pub is None:
             pub = self.publishers[key] = self.node.create_publisher(msg_type, topic,
                                                                     self.qos(qos))
+            # a new publisher's first messages reach nobody until discovery has matched it
+            # (slow on a loaded machine: a test's commands were all lost once); a topic no one
+            # reads costs this wait once
+            deadline = time.monotonic() + MATCH_WAIT_S
+            while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+                self.take()
+                time.sleep(0.005)
         msg = fill(msg_type(), fields or {})
         t0 = time.monotonic()
         for i in range(count):

@@ -43,6 +43,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker, Outgoing
 from ladrc_contract.commander_lock import CommanderLock, describe
+from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode, SampleWait
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
@@ -450,6 +451,7 @@ def main(argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        ignore_stop_signals()  # ladrc_contract.exit_signals
 
 
 if __name__ == '__main__':

@@ -40,6 +40,7 @@ from ladrc_contract.cdr import CdrPacker
 from ladrc_contract.codes import EventKind
 from ladrc_contract.events import EventFields
 from ladrc_contract.events import encode as encode_event
+from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
@@ -603,6 +604,7 @@ def main(argv: list[str] | None = None) -> int:
             node.gate.close()
             node.destroy_node()
         rclpy.try_shutdown()
+        ignore_stop_signals()  # ladrc_contract.exit_signals
 
 
 if __name__ == '__main__':

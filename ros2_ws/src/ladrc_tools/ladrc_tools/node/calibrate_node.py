@@ -39,6 +39,7 @@ import time
 from typing import Any, NamedTuple
 
 from ladrc_contract import qos
+from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
 from ladrc_follow.node.samples import sim_time_s
@@ -593,6 +594,7 @@ def main(argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        ignore_stop_signals()  # ladrc_contract.exit_signals
 
 
 if __name__ == '__main__':

@@ -47,6 +47,7 @@ import time
 from typing import Any
 
 from ladrc_contract import qos
+from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.qos import TOPIC_QOS, to_rclpy
 from ladrc_contract.topics import PARAMETERS_TOPIC, SEQ_FIELD, TOPIC_TYPES
 
@@ -318,6 +319,7 @@ def main(args: list[str] | None = None) -> int:
             print(json.dumps(summary), flush=True)
         node.destroy_node()
         rclpy.try_shutdown()
+        ignore_stop_signals()  # ladrc_contract.exit_signals
     return 0
 
 

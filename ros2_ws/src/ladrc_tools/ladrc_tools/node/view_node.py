@@ -54,6 +54,7 @@ import threading
 import time
 from typing import Any
 
+from ladrc_contract.exit_signals import ignore_stop_signals
 import numpy as np
 
 from .view_channels import (
@@ -441,6 +442,7 @@ def main(args: list[str] | None = None) -> int:
             print(json.dumps(view.summary()), flush=True)
         node.destroy_node()
         rclpy.try_shutdown()
+        ignore_stop_signals()  # ladrc_contract.exit_signals
     return 0
 
 
