@@ -355,7 +355,7 @@ LINUXCNC_FAULTS = (('kill-linuxcnc', 'LinuxCNC SIGKILLed while cutting'),
 
 
 def linuxcnc_rows(at_s: float = 2.5) -> int:
-    """Run the LinuxCNC rows: a three-contour job under LinuxCNC, a fault ``at_s`` after start.
+    """Run the LinuxCNC rows: a 15-contour job under LinuxCNC, a fault ``at_s`` after start.
 
     From the run's bag (the sim's truth, the controller's status, by the fault's wall time) and
     its figures: ``contact``, ``min_true_gap_after_mm``, ``down_after_mm`` (the nozzle's fall
@@ -376,7 +376,7 @@ def linuxcnc_rows(at_s: float = 2.5) -> int:
     for kind, name in LINUXCNC_FAULTS:
         tmp = Path(tempfile.mkdtemp(prefix='fault-linuxcnc-'))
         try:
-            job = small_job(tmp / 'job')
+            job = small_job(tmp / 'job', small_holes=12)  # (lasts past a late fault)
             rc, f, err = bringup_linuxcnc(job, tmp / 'logs', '--fault', f'{kind}@{at_s:g}',
                                           '--bag', str(tmp / 'bag'), '--domain-id',
                                           str(random.randint(120, 200)), timeout_s=300.0)

@@ -50,7 +50,10 @@ STAMP_TOLERANCE_S = 0.01  # the product's default (the node's stamp_tolerance_s)
 # ms with no set being built, the FIFO loop preempted (likely kernel 6.18's fair server, which
 # runs starved normal tasks up to 50 ms per second over real-time ones; not verified).
 RT_TIMEOUT_S = 0.1
-BUILD_MIN_S = 0.010  # the shortest hold of one set built on the loop (docs/safety.md)
+# A set built on the loop thread holds the tick after the one that applies it 7.9-15.9 ms
+# (quiet, measured 2026-12-07 by building it there: ``set_params`` in ``_apply_accepted``);
+# built on the parameter thread, that tick's period is 0.8-1.8 ms (the loop waits for the GIL).
+BUILD_MIN_S = 0.005
 # A bound on a hang, not on speed: lock step is slower on a loaded machine, never different.
 HANG_S = 300.0
 
@@ -270,12 +273,19 @@ def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):
     assert len(window) > 1000
     assert all(s[1] == S.STATE_LADRC for s in window), next(
         s for s in window if s[1] != S.STATE_LADRC)
-    # On the loop each request held it 10-21 ms, once per request (BUILD_MIN_S): here fewer
-    # periods than requests reach that. No absolute bound: another process on a loaded machine
-    # stalls the loop 14-37 ms now and then (two loaded fresh-clone runs), and a build on the
-    # loop thread would take longer there still.
-    periods_s = sorted(s[2] * 1e-6 for s in window)
-    assert sum(p >= BUILD_MIN_S for p in periods_s) < len(values), periods_s[-len(values):]
+    # A build on the loop holds the tick that applies a set or the next one (BUILD_MIN_S).
+    # rclpy checks a request's parameters one by one: each is a set, applied at a tick of its
+    # own. Only those ticks are looked at, and most must be clear: another process on a loaded
+    # machine stalls the loop 14-55 ms now and then (13 times in one CI window, stop 47), at
+    # ticks of its own choosing; that it lands on most applying ticks is not a risk.
+    period_s = {s[0]: s[2] * 1e-6 for s in window}
+    applied = [e.tick for e in events if e.kind == FollowEvent.PARAMETERS
+               and any(f'kp: {v}' in e.text for v in values)]
+    held = {t: (period_s.get(t), period_s.get(t + 1)) for t in applied}
+    known = {t: max(p) for t, p in held.items() if None not in p}
+    # (a best-effort status the probe missed is not known)
+    assert len(known) >= len(values), held
+    assert sum(p >= BUILD_MIN_S for p in known.values()) <= len(known) // 2, known
     assert 'watchdog:' not in nodes.log('sim')
     assert _get_param(probe, 'law.kp') == pytest.approx(values[-1])
 

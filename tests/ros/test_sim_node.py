@@ -20,9 +20,12 @@ from stalls import STALL_MAX_NORMAL_S  # noqa: E402
 pytestmark = [pytest.mark.ros, pytest.mark.realtime]
 # The drive watchdog of this test: the commands come from the probe process at normal priority
 # every 2 ms, so the watchdog must outlast its stalls (bench/stalls.py) plus one command period;
-# the product's 5 ms is the fault matrix's (bench/fault_matrix.py).
+# the product's 5 ms is the fault matrix's (bench/fault_matrix.py). 50 ms (STALL_MAX_NORMAL_S
+# + a period) tripped in a CI run (stop 47) while the probe commanded: that machine stalled
+# processes 51-55 ms (the follow node's periods in the same run). What is asserted here is
+# that commands move the axis and that their end stops it, not how soon.
 COMMAND_PERIOD_S = 0.002
-WATCHDOG_S = 0.05
+WATCHDOG_S = 0.25
 assert WATCHDOG_S > STALL_MAX_NORMAL_S + COMMAND_PERIOD_S
 
 
@@ -162,8 +165,8 @@ def test_a_release_hands_the_axis_over(sim):
     n = len(fbs)
     _command(probe, B, 4.0, 0.3)  # B takes the axis: no commander fault
     if fbs[-1].drive_fault and fbs[-1].fault_reason.startswith('no velocity command'):
-        # this probe stalled past the 50 ms watchdog between A's release and B's first command
-        # (a loaded machine): the drive stopped, as it must; reset, and B commands again
+        # this probe stalled past the watchdog (WATCHDOG_S) between A's release and B's first
+        # command (a loaded machine): the drive stopped, as it must; reset, and B commands again
         assert probe.call(ResetFault, 'axis/reset_drive', ResetFault.Request()).accepted
         _command(probe, B, 4.0, 0.3)
     assert not any('commander' in f.fault_reason for f in fbs[n:])

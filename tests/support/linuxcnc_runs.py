@@ -43,8 +43,13 @@ seed: 7
 """
 
 
-def small_job(folder: Path) -> Path:
-    """Write a 6 s job (three contours: a round and a square hole, the outline); its file."""
+def small_job(folder: Path, small_holes: int = 0) -> Path:
+    """Write a 6 s job (three contours: a round and a square hole, the outline); its file.
+
+    ``small_holes`` (up to 12): as many 5 mm holes more, in two rows beside the others, each
+    a pierce and a leapfrog more (about 0.7 s each): a job that lasts while a fault is
+    injected at a time of the bring-up's, which a loaded machine can delay by seconds.
+    """
     import ezdxf
 
     doc = ezdxf.new('R2010')
@@ -53,6 +58,8 @@ def small_job(folder: Path) -> Path:
     msp.add_lwpolyline([(20, 15), (80, 15), (80, 55), (20, 55)], close=True)
     msp.add_circle((35, 35), 6)
     msp.add_lwpolyline([(55, 28), (67, 28), (67, 42), (55, 42)], close=True)
+    for k in range(min(small_holes, 12)):
+        msp.add_circle((26 + 10 * (k % 6), 21 if k < 6 else 49), 2.5)
     folder.mkdir(parents=True, exist_ok=True)
     doc.saveas(str(folder / 'small.dxf'))
     (folder / 'small.yaml').write_text(SMALL_JOB, encoding='utf-8')
@@ -82,8 +89,10 @@ def summary(figures: dict) -> str:
     """Return the figures a test prints (one line)."""
     keys = ('job_time_s', 'pierces', 'contacts', 'faults', 'min_gap_over_target_cutting',
             'holds', 'finished', 'aborted')
-    b = figures.get('linuxcnc', {}).get('bridge', {})
+    lc = figures.get('linuxcnc', {})
+    b = lc.get('bridge', {})
     return json.dumps({**{k: figures.get(k) for k in keys},
+                       'linuxcnc': {k: lc.get(k) for k in ('events', 'fault')},
                        'bridge': {k: b.get(k) for k in ('pierces', 'holds', 'leapfrogs',
                                                         'moved_before_ready', 'fault_holds',
                                                         'linuxcnc_max_gap_ms', 'aborted')}})
