@@ -209,8 +209,12 @@ def test_a_recorder_behind_at_the_end_of_a_run_loses_nothing(tmp_path):
     scenario = tmp_path / 'lockstep_end.yaml'
     scenario.write_text(SHORT)
     bag, logs = tmp_path / 'bag', tmp_path / 'logs'
-    up = Bringup(node_specs(str(scenario), bag=str(bag), lockstep=True, paced=False),
-                 isolated_env(int(os.environ['ROS_DOMAIN_ID'])), logs)
+    specs = node_specs(str(scenario), bag=str(bag), lockstep=True, paced=False)
+    # The repair of 3 s of five 2 kHz topics to the continued recorder took more than the
+    # sim's default 10 s end wait in a loaded fresh-clone run (the bag lost axis/feedback's last
+    # 439 samples, the sim said so): the wait, not its length, is the subject here.
+    next(s for s in specs if s.name == 'ladrc_sim').parameters['lockstep_timeout_s'] = 120.0
+    up = Bringup(specs, isolated_env(int(os.environ['ROS_DOMAIN_ID'])), logs)
     try:
         up.start()
         sim, rec = up.procs['ladrc_sim'], up.procs['ladrc_recorder']
