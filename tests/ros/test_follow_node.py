@@ -2,15 +2,18 @@
 
 The behaviour test runs in lock step (docs/follow-node.md): the sim and the controller answer
 each other step by step on the sim's clock, with the product's timeouts, so a loaded machine
-makes it slower, never different. The kill test is a real-time one (``realtime`` marker): its
-bound is the stall this machine class must tolerate, measured by bench/stalls.py.
+makes it slower, never different. The kill test and the parameter test are real-time ones
+(``realtime`` marker): they look at the ticks their subject concerns, not at a bound on how
+long this machine may stall (bench/stalls.py measures that).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -28,7 +31,6 @@ from ladrc_msgs.srv import Hold, Pierce, ResetFault, StartFollow, StopFollow  # 
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import GetParameters, SetParameters  # noqa: E402
 from rosnodes import LATCHED, RELIABLE, NodeProcesses, Probe  # noqa: E402
-from stalls import STALL_MAX_S  # noqa: E402
 
 SCENARIOS = Path(__file__).parent / 'scenarios'
 pytestmark = pytest.mark.ros
@@ -93,11 +95,6 @@ def _running(timeout_s: float | None):
 @pytest.fixture()
 def axis():
     yield from _running(None)
-
-
-@pytest.fixture()
-def axis_tight():
-    yield from _running(KILL_TIMEOUT_S)
 
 
 @pytest.fixture()
@@ -290,9 +287,37 @@ def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):
     assert _get_param(probe, 'law.kp') == pytest.approx(values[-1])
 
 
+# The longest a SCHED_FIFO loop is held up here: the kernel's fair server (6.12 on; this VM runs
+# 6.18) runs starved normal tasks up to 50 ms a second over real-time ones; a CI run (stop 47)
+# saw 51-55 ms tick periods. Only a fallback bound: the kill test checks the tick before.
+FIFO_STALL_MAX_S = 0.055
+ATTEMPTS = 3
+
+
 @pytest.mark.realtime
-def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis_tight):
-    nodes, probe = axis_tight
+def test_killing_the_sim_faults_the_controller_within_a_few_ticks():
+    """The sim SIGKILLed while following: stale input, FAULT at the first tick past the limit.
+
+    The product's 10 ms limits, free-running: a stall of this machine past them before the
+    kill trips the drive's watchdog first (seen in a quiet CI run: the controller's FAULT
+    was "drive fault reported by the drive"). Such a run says nothing of the kill: the test
+    starts again (ATTEMPTS at most), the sim's log naming the trip.
+    """
+    for attempt in range(1, ATTEMPTS + 1):
+        with _axis_running(KILL_TIMEOUT_S) as (nodes, probe):
+            fault = _kill_the_sim_while_following(nodes, probe)
+            print(f'attempt {attempt}: {fault[6] if fault else "watchdog before the kill"}',
+                  file=sys.stderr)
+            if fault is not None:
+                break
+    assert fault is not None, f'the drive watchdog tripped before the kill in {ATTEMPTS} runs'
+
+
+_axis_running = contextlib.contextmanager(_running)
+
+
+def _kill_the_sim_while_following(nodes: NodeProcesses, probe: Probe) -> tuple | None:
+    """Return the first FAULT status after the kill (None: the drive faulted before it)."""
     status = probe.record(FollowStatus, 'follow/status', fields=STATUS)
     cmds = probe.record(VelocityCommand, 'axis/velocity_command',
                         fields=['seq', 'velocity_mm_s', 'enable'])
@@ -300,21 +325,31 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis_tight):
     assert probe.spin_until(lambda: len(status) > 200 and status[-1][4] > 0, 30.0), (
         nodes.log('follow'))
     assert probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0)).accepted
-    assert probe.spin_until(lambda: status[-1][1] in (S.STATE_PID, S.STATE_LADRC), HANG_S), (
-        status[-1][6], status[-1][:3], nodes.log('sim')[-800:])
+    assert probe.spin_until(lambda: status[-1][1] in (S.STATE_PID, S.STATE_LADRC, S.STATE_FAULT),
+                            HANG_S), (status[-1][6], status[-1][:3], nodes.log('sim')[-800:])
 
     nodes.kill('sim')
     assert probe.spin_until(lambda: status[-1][1] == S.STATE_FAULT, HANG_S), status[-1]
-    # The fault comes once the last sample is older than the limit: the age at the fault
-    # tick is the limit plus at most one own-deadline tick (the sync loop's 0.75 ms) and one
-    # scheduling stall of the controller (STALL_MAX_S, bench/stalls.py). The latched reason
-    # states it (the probe may miss the first FAULT status messages on a loaded machine:
-    # best-effort topic, so the first one recorded can be later than the fault tick).
-    fault = next(s for s in status if s[1] == S.STATE_FAULT)
+    i, fault = next((i, s) for i, s in enumerate(status) if s[1] == S.STATE_FAULT)
+    if 'stale input' not in fault[6] and 'watchdog:' in nodes.log('sim'):
+        print(f'the drive watchdog tripped before the kill: {fault[6]}', file=sys.stderr)
+        probe.spin_for(3.0)  # (the teardown after a SIGKILL, below)
+        return None
     assert 'stale input' in fault[6]  # a readable reason
-    age_at_fault_s = float(re.search(r'gap age ([0-9.eE+-]+) ms', fault[6]).group(1)) * 1e-3
-    assert KILL_TIMEOUT_S - 0.002 < age_at_fault_s < KILL_TIMEOUT_S + 0.00075 + STALL_MAX_S, (
-        age_at_fault_s, fault[6])
+    # The fault comes at the first tick whose older input is past the limit. The probe may
+    # miss status messages (best effort); where it has the fault tick and the one before, the
+    # ages at that one (the fault's, less the time between the two ticks) were within the
+    # limit (0.1 ms: the reason's 3 digits). Else: the limit, one own-deadline tick (the
+    # sync loop's 0.75 ms) and one stall of the loop (FIFO_STALL_MAX_S).
+    ages_s = [float(a) * 1e-3 for a in re.search(
+        r'gap age ([0-9.eE+-]+) ms, encoder age ([0-9.eE+-]+) ms', fault[6]).groups()]
+    assert max(ages_s) > KILL_TIMEOUT_S - 0.0001, fault[6]
+    before = status[i - 1] if i > 0 else None
+    if before is not None and before[0] == fault[0] - 1:
+        ages_before_s = [a - (fault[7] - before[7]) for a in ages_s]
+        assert max(ages_before_s) <= KILL_TIMEOUT_S + 0.0001, (ages_before_s, fault[6])
+    else:
+        assert max(ages_s) < KILL_TIMEOUT_S + 0.00075 + FIFO_STALL_MAX_S, fault[6]
     probe.spin_for(0.05)
     assert all(v == 0.0 for _, v, _ in cmds[-20:])
     assert not cmds[-1][2]
@@ -322,6 +357,7 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks(axis_tight):
     # locked about a second later; the probe's teardown waits for that (a teardown inside the
     # window can crash: tests/support/probe_node.py)
     probe.spin_for(3.0)
+    return fault
 
 
 @pytest.mark.parametrize('topic, msg_type, fields, expect', [

@@ -526,14 +526,18 @@ class Sequencer:
     def end_ready(self, answers: dict[str, Any] | None, now_s: float) -> bool:
         """Return whether the job's log can go out.
 
-        Once the controller commands zero (after an abort's lift: once the follow is stopped),
-        or ``end_timeout_s`` after the end at the latest.
+        Once the controller commands zero (after an abort's lift: once the follow is stopped)
+        and, after a FAULT, once LinuxCNC's samples showed its feed held (the log says how soon;
+        a loaded machine's component can be tens of ms late), or ``end_timeout_s`` after the
+        end at the latest.
         """
         if self.end_t < 0:
             return False
         limit = self.p.end_timeout_s + (self.p.wait_timeout_s if self.lift_after_abort else 0.0)
         if now_s - self.end_t > limit:
             return True
+        if self.fault_logged is not None and 'feed_hold_after_ms' not in self.fault_logged:
+            return False
         if self.lift_after_abort and not self.stop_sent:
             return False
         zero = answers is not None and answers.get('velocity_mm_s', 0.0) == 0.0

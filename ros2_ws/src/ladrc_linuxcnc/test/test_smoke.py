@@ -76,3 +76,10 @@ def test_a_fault_holds_the_feed_and_pauses():
                    0.0, 0.1)
     assert out.outputs.flags & p.O_FEED_HOLD and out.outputs.pause_count == 1
     assert 'collision' in seq.log.aborted
+    # the log waits until LinuxCNC's samples show the feed held (its time is in the log)
+    fault = {**ans, 'state': 5, 'fault_reason': 'collision'}
+    seq.step(sample(3, RUN, p.MOTION_FEED, 1.0, 0.0), fault, 0.0, 0.15)
+    assert not seq.end_ready(fault, 0.2)
+    seq.step(sample(4, RUN | p.F_FEED_HOLD_IN | p.F_PAUSED), fault, 0.0, 0.25)
+    assert seq.end_ready(fault, 0.3)
+    assert seq.log.fault_holds[0]['feed_hold_after_ms'] == 150.0
