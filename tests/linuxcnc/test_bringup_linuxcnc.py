@@ -116,10 +116,10 @@ def test_linuxcnc_killed_mid_job_the_head_lifts_and_stops(tmp_path, ros_env):
     # the kill comes 2.5 s after cycle start by the bring-up's clock, 3.1-3.7 s with two busy
     # loops here, after the 6 s job's end in one CI run: a job of 12 holes more lasts. A run
     # that a timing guard stopped before the kill is safe and says nothing of it: another
-    # (2 x ATTEMPTS at most: with two busy loops 3 runs of 5 were stopped so, at the first
-    # pierce, by the sim drive's 20 ms watchdog; such a run ends within seconds).
+    # (ATTEMPTS at most: with two busy loops 3 runs of 5 were stopped so, at the first pierce,
+    # by the sim drive's 20 ms watchdog; such a run ends within seconds).
     job = small_job(tmp_path / 'job', small_holes=12)
-    for attempt in range(1, 2 * ATTEMPTS + 1):
+    for attempt in range(1, ATTEMPTS + 1):
         rc, f, err = bringup_linuxcnc(job, tmp_path / f'run{attempt}', '--fault',
                                       'kill-linuxcnc@2.5', *domain(ros_env), timeout_s=300.0,
                                       env=ros_env)
