@@ -1,9 +1,13 @@
 # The README's commands. Each sets up what it needs (scripts/setup-env) on a fresh machine.
-.PHONY: demo test lint setup clean
+.PHONY: demo demo-live test lint setup clean
 
-# A live simulated run (sim + controller + recorder) ending in a bag and a report.
+# The showcase live on ROS (sim + controller + recorder) in lock step paced to real time,
+# ending in a bag and its report; demo-live: the same free-running (the product's own loop).
 demo:
 	scripts/in-env python -m ladrc_tools.bringup.demo
+
+demo-live:
+	scripts/in-env python -m ladrc_tools.bringup.demo --free-running
 
 
 # Lint (ruff: flake8 + pep257 rule sets, the ROS Python conventions), then every test in two

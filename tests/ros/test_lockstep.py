@@ -18,9 +18,11 @@ import subprocess
 import time
 
 from bagdiff import diff_bags
+from ladrc_tools.bags.bag import open_bag
 import pytest
 
 pytest.importorskip('rclpy')
+from ladrc_sim.node.drive_bridge import WIND_DOWN_TICKS  # noqa: E402 (after the skip)
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
@@ -67,21 +69,36 @@ def lockstep_run(scenario: str, bag: Path, logs: Path, what: str = '--scenario',
     codes = {'ladrc_follow': 0, 'ladrc_sim': 0, 'ladrc_recorder': 0}
     if '--separate-cnc' in extra:
         codes['ladrc_cnc'] = 0
-    assert json.loads(res.stdout.strip().splitlines()[-1])['exit_codes'] == codes, logs_text
+    last = json.loads(res.stdout.strip().splitlines()[-1])
+    assert last['exit_codes'] == codes, logs_text
+    # a run that ended normally did not end in FAULT (unless its scenario or job declares it)
+    assert last['ok'] and last['run']['final_state'] in ('IDLE', 'FAULT'), last
     summary = json.loads((bag / 'recording.json').read_text())
     assert summary['messages_lost'] == 0 and summary['messages_dropped'] == 0, summary
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    return last
 
 
-def assert_equal_bags(headless: Path, live: Path, n: int) -> None:
-    """Every field of every message of ``TOPICS`` equal but ``WALL_TIME``; ``n`` ticks."""
-    diffs = diff_bags(headless, live, TOPICS, WALL_TIME, limit={'axis/velocity_command': n})
+def assert_equal_bags(headless: Path, live: Path, n: int, wind_down: bool = False) -> None:
+    """Every field of every message of ``TOPICS`` equal but ``WALL_TIME``; ``n`` ticks.
+
+    ``wind_down``: the live run of a scenario ends with the sim's wind-down (the controller
+    stopped, then WIND_DOWN_TICKS more steps): the live bag has those steps and the
+    stop_follow event more; the headless run's messages are compared with the live run's first.
+    """
+    with open_bag(headless) as b:
+        headless_counts = {t: b.count(t) for t in TOPICS}
+    limit = {t: headless_counts[t] for t in TOPICS}
+    limit['axis/velocity_command'] = n
+    diffs = diff_bags(headless, live, TOPICS, WALL_TIME, limit=limit)
     for d in diffs:
         assert not d.missing and not d.differing, (d.topic, d.missing, d.differing)
         if d.topic == 'axis/velocity_command':
             assert d.count_a == n and d.count_b >= n, (d.count_a, d.count_b)
             continue
-        assert d.count_a == d.count_b, (d.topic, d.count_a, d.count_b)
+        extra = 0
+        if wind_down:
+            extra = 1 if d.topic == 'follow/events' else WIND_DOWN_TICKS
+        assert d.count_b == d.count_a + extra, (d.topic, d.count_a, d.count_b)
     status = next(d for d in diffs if d.topic == 'follow/status')
     assert status.compared == n  # every tick of the run
 
@@ -89,7 +106,7 @@ def assert_equal_bags(headless: Path, live: Path, n: int) -> None:
 @pytest.mark.parametrize('scenario', ['showcase', 'faults', 'thin_sheet'])
 def test_live_lockstep_equals_headless(tmp_path, scenario):
     live, headless = tmp_path / 'live', tmp_path / 'headless'
-    lockstep_run(scenario, live, tmp_path / 'logs')
+    live_run = lockstep_run(scenario, live, tmp_path / 'logs')
     res = run([str(BIN / 'ladrc'), 'simulate', scenario, '-o', str(headless)])
     assert res.returncode == 0, res.stdout[-2000:]
 
@@ -97,14 +114,16 @@ def test_live_lockstep_equals_headless(tmp_path, scenario):
     # with enable off on the way down (SIGINT), after the last tick
     with_ticks = json.loads(res.stdout.strip().splitlines()[-1])
     n = int(round(with_ticks['duration_s'] / 0.0005))
-    assert_equal_bags(headless, live, n)
+    assert_equal_bags(headless, live, n, wind_down=True)
+    final = 'FAULT' if scenario == 'faults' else 'IDLE'  # faults declares its FAULT
+    assert live_run['run']['final_state'] == final, live_run['run']
 
     if scenario == 'showcase':
-        # a live bag replays through the core bit for bit (ladrc replay)
+        # a live bag replays through the core bit for bit (ladrc replay), its wind-down too
         rep = run([str(BIN / 'ladrc'), 'replay', str(live)])
         line = json.loads(rep.stdout.strip().splitlines()[-1])
         assert rep.returncode == 0 and line['mismatches'] == 0, rep.stdout[-2000:]
-        assert line['missing_ticks'] == 0 and line['ticks'] == n, line
+        assert line['missing_ticks'] == 0 and line['ticks'] == n + WIND_DOWN_TICKS, line
 
 
 JOB_FIGURES = ('job_time_s', 'contacts', 'faults', 'pierces', 'holds', 'feed_hold_s',
@@ -230,7 +249,7 @@ def test_a_recorder_behind_at_the_end_of_a_run_loses_nothing(tmp_path):
         os.kill(up.procs['ladrc_recorder'].pid, signal.SIGCONT)
         codes = up.stop()
     assert codes['ladrc_recorder'] == 0, codes
-    steps = 6000  # 3 s at 2 kHz, every sample fresh
+    steps = 6000 + WIND_DOWN_TICKS  # 3 s at 2 kHz, every sample fresh, and the wind-down
     with open_bag(bag) as b:
         for topic, seq in (('axis/capacitive_height', 'seq'), ('axis/feedback', 'seq'),
                            ('sim/truth', 'seq'), ('follow/status', 'tick')):

@@ -25,7 +25,9 @@ from __future__ import annotations
 from array import array
 import functools
 import gc
+import json
 import math
+import os
 import queue
 import secrets
 import signal
@@ -44,6 +46,7 @@ from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
+from ladrc_contract.run_log import RunLog, verdict
 from ladrc_contract.schema import Entry, entries, field_problems
 from ladrc_contract.services import FOLLOW_SERVICES, command_args, service_class
 from ladrc_contract.topics import (
@@ -142,6 +145,7 @@ class FollowNode(LoopNode):
         self.tick_index = 0
         self.sample_seq = 0  # the feedback sample (sync, deadline) or the step (lockstep)
         self.stats = LoopStats(self.period_ns, self.lockstep)
+        self.run_log = RunLog(self.h_s)  # faults, holds, time per state: written at exit
         self.deadline_ticks = 0  # sync: ticks run on the own deadline (a sample was late)
         self.tick_exceptions = 0
         self.realtime = 'none'  # what apply_realtime could set (main), for /diagnostics
@@ -416,8 +420,12 @@ class FollowNode(LoopNode):
                         overrun: bool) -> None:
         """FollowStatus of this tick: the inputs used, the core's internals, the timing."""
         st, ix, s = self._st_vals, self._ix, self.samples
-        for name, value in self.controller.internals().items():
+        internals = self.controller.internals()
+        for name, value in internals.items():
             st[ix[name]] = value
+        t = tick.t_s
+        self.run_log.tick(t, internals['state'], internals['fault_reason'], t - tick.gap_stamp_s,
+                          t - tick.encoder_stamp_s, internals['substate'])
         st[0], st[1], st[3] = sec, nsec, self.tick_index
         values = (tick.t_s, s.gap_seq, tick.gap_mm, tick.gap_valid, tick.gap_status,
                   tick.gap_stamp_s, s.enc_seq, tick.encoder_mm, tick.encoder_stamp_s,
@@ -426,6 +434,21 @@ class FollowNode(LoopNode):
         for i, value in zip(self._ix_inputs, values, strict=True):
             st[i] = value
         self.pub_status.publish(self._st_packer.pack(st))
+
+    def write_run_summary(self) -> None:
+        """Log the run's outcome in one line; write its summary to ``summary_file`` if set."""
+        with self._lock:
+            summary = self.run_log.summary()
+        self.get_logger().info(f'run: {verdict(summary)[1]}')
+        path = self.node_params.summary_file
+        if path:
+            try:
+                tmp = f'{path}.part'
+                with open(tmp, 'w', encoding='utf-8') as f:
+                    json.dump(summary, f)
+                os.replace(tmp, path)
+            except OSError as exc:
+                self.get_logger().error(f'summary_file {path}: {exc.strerror or exc}')
 
     def on_tick_exception(self, exc: BaseException) -> None:
         """Any exception on the tick path: zero command first, then FAULT, then the log."""
@@ -597,6 +620,7 @@ def main(argv: list[str] | None = None) -> int:
                                       min(2.0, node.node_params.lockstep_timeout_s))
                 except Exception:  # noqa: BLE001 - the context may already be gone
                     pass
+        node.write_run_summary()
         return 0
     finally:
         if node is not None:

@@ -57,7 +57,9 @@ class NodeParams:
                               runtime=False)
     hardware_id: str = param('z_axis', '', 'hardware_id of the /diagnostics status (named '
                              'after the node: <namespace/name>: follow loop)', runtime=False)
-
+    summary_file: str = param('', '', 'at exit, write the run (faults with reason and input '
+                              'ages, holds, time per state, final state) as JSON to this file; '
+                              "'' writes none (the log line is always written)", runtime=False)
 
 
 def params_file_problem(args: list[str]) -> str:

@@ -175,6 +175,11 @@ class MetricsAccumulator:
         self._nv = self._na = 0
         self._u_before = 0.0
 
+    @property
+    def error_ticks(self) -> int:
+        """Ticks the error metrics are taken over: with a target, from the followed tick on."""
+        return self._count
+
     def add(self, t_s: np.ndarray, gap: np.ndarray, target: np.ndarray,
             collision: np.ndarray | None = None, command_mm_s: np.ndarray | None = None,
             internals: Mapping[str, np.ndarray] | None = None) -> None:

@@ -10,6 +10,7 @@ the simulated world). The layout (every key but ``name`` and ``duration_s`` opti
     seed: 1
     initial_gap_mm: 10.0        # nozzle above the sheet at t = 0
     initial_coverage: 1.0       # fraction of the nozzle over the sheet at t = 0
+    expect_fault: false         # true: the run may end in FAULT (fault injection)
     axis:    {model: first_order, t1_s: 0.008, v_max_mm_s: 200, ...}   # AxisParams
     sensor:  {noise_std_mm: 0.005, ...}                                # SensorParams
     encoder: {resolution_mm: 0.001}                                    # EncoderParams
@@ -61,7 +62,8 @@ COMMANDS: dict[str, dict[str, tuple]] = {
     # the CNC interface (docs/interfaces.md, "CNC interface"); the controller checks the rest
     'pierce': {'heights_mm': (tuple, REQUIRED, None, None),
                'dwell_s': (tuple, REQUIRED, None, None),
-               'cut_gap_mm': (float, REQUIRED, 0.0, 20.0), 'thc_delay_s': (float, 0.0, 0.0, 60.0)},
+               'cut_gap_mm': (float, REQUIRED, 0.0, 20.0), 'thc_delay_s': (float, 0.0, 0.0, 60.0),
+               'locked': (bool, False, None, None)},
     'lift': {'mode': (int, 0, None, None), 'value_mm': (float, REQUIRED, 0.0, 500.0),
              'velocity_mm_s': (float, 0.0, 0.0, None)},
     'hold': {'hold': (bool, REQUIRED, None, None), 'at_next_segment': (bool, False, None, None),
@@ -128,10 +130,12 @@ class Scenario:
     sheet: SheetParams = field(default_factory=SheetParams)
     timeline: tuple[Event, ...] = ()
     source: str = ''
+    expect_fault: bool = False  # the run may end in FAULT (a fault-injection scenario)
 
 
 _TOP_KEYS = ('name', 'description', 'duration_s', 'seed', 'initial_gap_mm',
-             'initial_coverage', 'axis', 'sensor', 'encoder', 'sheet', 'timeline')
+             'initial_coverage', 'axis', 'sensor', 'encoder', 'sheet', 'timeline',
+             'expect_fault')
 
 
 class _Fail(Exception):
@@ -324,7 +328,8 @@ def _scenario(data: Any, source: str) -> Scenario:
         sensor=_build(SensorParams, data.get('sensor', {}), 'sensor'),
         encoder=_build(EncoderParams, data.get('encoder', {}), 'encoder'),
         sheet=_sheet(data.get('sheet', {}), 'sheet'),
-        timeline=tuple(events), source=source)
+        timeline=tuple(events), source=source,
+        expect_fault=_coerce(data.get('expect_fault', False), bool, 'expect_fault'))
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):

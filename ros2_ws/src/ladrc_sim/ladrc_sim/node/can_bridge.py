@@ -58,6 +58,7 @@ class CanDriveBridge(DriveBridge):
 
     def step(self, tick: Any) -> float:
         """One drive period (:meth:`CanDrive.step`)."""
+        self.last_tick = tick
         if self.t_start_ns == 0:
             self._start()
         try:

@@ -25,6 +25,11 @@ from ..headless.scenario import (
     DRIVE_FAULT_REASON,
 )
 
+WIND_DOWN_TICKS = 20
+"""Steps the controller runs stopped, its inputs still live, before a run's samples end."""
+WIND_DOWN_LIMIT_S = 2.0
+"""Wall time the controller has to answer the run's closing ``stop_follow``."""
+
 
 class _Command(NamedTuple):
     """The fields of a ``VelocityCommand`` the drive uses."""
@@ -98,6 +103,7 @@ class DriveBridge:
         self.malformed_commands = 0
         self.cmd_source: Identity = ('', 0)  # whose command is held
         self.cycles_by_commander: Counter = Counter()  # drive cycles executed, per source
+        self.last_tick = None  # the runner's latest tick (wind_down holds the world at it)
 
     # ---- the runner's hooks -------------------------------------------------------------
     def truth(self, t_s: float, true_gap_mm: float, sheet_mm: float, nozzle_mm: float,
@@ -153,6 +159,34 @@ class DriveBridge:
             self.t_start_ns = now
         return now
 
+    def wind_down(self, ticks: int = WIND_DOWN_TICKS, limit_s: float = WIND_DOWN_LIMIT_S
+                  ) -> str:
+        """End a run with the controller stopped before its inputs stop.
+
+        Calls ``stop_follow`` and keeps stepping with the world and the axis held at the
+        runner's last tick (fresh samples, stamped on), until the call is answered and
+        ``ticks`` more steps went out, so the controller commands zero while it still has
+        inputs. Lock step: the answer comes before the first held step. Returns '' or why the
+        controller did not answer within ``limit_s`` of wall time.
+        """
+        tick = self.last_tick
+        if tick is None:
+            return ''
+        future = self.node.send_follow_command('stop_follow', {})
+        if self.lockstep:
+            self._await(future.done, 'no answer to the stop_follow service call')
+        end_ns = time.monotonic_ns() + int(limit_s * 1e9)
+        after = 0
+        while after < ticks:
+            t = self.seq * self.node.h_s
+            self.step(tick._replace(t_s=t, gap_stamp_s=t, encoder_stamp_s=t))
+            self.last_tick = tick
+            if future.done():
+                after += 1
+            elif time.monotonic_ns() > end_ns:
+                return f'the controller did not answer stop_follow within {limit_s:g} s'
+        return ''
+
     def step_lockstep(self, tick) -> float:
         """Lock step: publish step k, wait for the command answering k, return it."""
         now = self._start()
@@ -194,6 +228,7 @@ class DriveBridge:
 
     def step(self, tick) -> float:
         """Wait for this tick's deadline, publish its samples, return the latest command."""
+        self.last_tick = tick
         if self.lockstep:
             return self.step_lockstep(tick)
         node = self.node

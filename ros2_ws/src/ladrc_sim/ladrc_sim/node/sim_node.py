@@ -23,6 +23,11 @@ reason naming both senders, until ``axis/reset_drive`` (``ResetFault``). Every d
 counts whose command it executed (``cycles_by_commander`` on /diagnostics and in the log at
 the end).
 
+At a scenario's end the controller is stopped before its inputs are
+(:meth:`DriveBridge.wind_down`): ``stop_follow``, then a few steps with the world held at its
+last tick, so the run ends with the controller IDLE and commanding zero, not with a stale-input
+FAULT.
+
 A sample is published only when the runner has a fresh one: during a ``sensor_dropout`` or
 ``encoder_dropout`` nothing is sent, as a driver sends nothing (seq counts published samples).
 
@@ -137,6 +142,7 @@ class SimNode(LoopNode):
         self.declare_parameter('can_bus', 'ws://127.0.0.1:54701/')
         self.declare_parameter('can_node_id', 5)
         self.declare_parameter('can_eds', '')
+        self.declare_parameter('can_device', '')  # the drive's device file (default: shipped)
         self.drive_kind = str(self.get_parameter('drive').value)
         if self.drive_kind not in ('', 'cia402'):
             raise ValueError(f"drive {self.drive_kind!r}: '' (ROS) or 'cia402'")
@@ -442,9 +448,11 @@ def _can_bridge(node: SimNode, realtime: bool):
 
     network = connect(str(node.get_parameter('can_bus').value))
     eds = str(node.get_parameter('can_eds').value) or None
-    drive = CanDrive(network, int(node.get_parameter('can_node_id').value), eds,
+    device = str(node.get_parameter('can_device').value) or None
+    node_id = None if device else int(node.get_parameter('can_node_id').value)
+    drive = CanDrive(network, node_id, None if device else eds,
                      lockstep=node.lockstep, lockstep_timeout_s=node.lockstep_timeout_s,
-                     h_s=node.h_s)
+                     h_s=node.h_s, device=device)
     drive.boot()
     node.network = network
     return CanDriveBridge(node, drive, realtime)
@@ -524,6 +532,9 @@ def main(argv: list[str] | None = None) -> int:
                                        f'{node.scenario.duration_s} s')
                 result = run(node.scenario, bridge, h_s=node.h_s)
                 node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
+                late = bridge.wind_down()  # the controller stops before its inputs do
+                if late:
+                    node.get_logger().warning(f'wind-down: {late}')
         except StopSimulation:
             pass
         except LockstepAbort as exc:

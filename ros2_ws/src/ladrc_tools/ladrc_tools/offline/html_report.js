@@ -406,6 +406,21 @@
       }],
       draw: [(u) => {
         p.draws = (p.draws || 0) + 1;
+        if (meta.faults && meta.faults.length) {  // every fault of the run: a red line, F1...
+          const ctx = u.ctx;
+          ctx.save();
+          ctx.strokeStyle = '#d62728';
+          ctx.fillStyle = '#d62728';
+          ctx.setLineDash([6, 3]);
+          ctx.font = '12px sans-serif';
+          for (const f of meta.faults) {
+            const x = u.valToPos(f.t, 'x', true);
+            if (x < u.bbox.left || x > u.bbox.left + u.bbox.width) continue;
+            ctx.beginPath(); ctx.moveTo(x, u.bbox.top); ctx.lineTo(x, u.bbox.top + u.bbox.height); ctx.stroke();
+            ctx.fillText(f.label, x + 3, u.bbox.top + 12);
+          }
+          ctx.restore();
+        }
         if (p.id === 'command' && meta.vMax) {
           const ctx = u.ctx;
           ctx.save();

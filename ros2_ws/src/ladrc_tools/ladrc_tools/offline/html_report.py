@@ -118,7 +118,10 @@ def _summary(report: dict[str, Any]) -> list[str]:
     def num(v: Any, unit: str = '') -> str:
         return f'{v:.4g}{unit}' if isinstance(v, (int, float)) and v == v else 'n/a'
 
-    lines = [f'{report.get("source", "?")}' + (f', scenario {report["scenario"]}'
+    lines = [str(report.get('outcome', ''))]
+    lines += [f'F{k} at {f["t_s"]:.4f} s, from {f["state_before"]}: {f["reason"]}'
+              for k, f in enumerate(report.get('faults', []), 1)]
+    lines += [f'{report.get("source", "?")}' + (f', scenario {report["scenario"]}'
                                               if report.get('scenario') else ''),
              f'{report.get("duration_s", 0.0):.3f} s, {report.get("ticks", 0)} ticks, '
              f'h = {report.get("h_s", 0.0) * 1e3:.3f} ms',
@@ -145,7 +148,9 @@ def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> Ite
         if present:
             plots.append({'id': pid, 'title': title, 'y': ylabel, 'series': present})
     meta = {
-        'title': f'Report: {Path(str(report.get("bag", "bag"))).name}',
+        'title': f'Report: {report.get("title") or Path(str(report.get("bag", "bag"))).name}',
+        'faults': [{'t': f['t_s'], 'label': f'F{k}'}
+                   for k, f in enumerate(report.get('faults', []), 1)],
         'summary': _summary(report),
         'n': data.n, 'factor': data.factor, 'auxLevel': data.aux_level,
         'pointsPerPx': POINTS_PER_PX, 'topBuckets': 1024,

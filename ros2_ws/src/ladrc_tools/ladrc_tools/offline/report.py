@@ -16,6 +16,7 @@ import sys
 from typing import Any, Callable
 
 from ladrc_contract.codes import FollowState, LimitFlag
+from ladrc_contract.run_log import RunLog, verdict
 from ladrc_contract.topics import SEQ_FIELD
 import numpy as np
 import yaml
@@ -61,11 +62,8 @@ def _find_key(data: Any, key: str) -> float | None:
 REPORT_FIELDS = ('tick', 'stamp_s', 'state', 'target_gap_mm', 'td_x1_mm', 'followed',
                  'velocity_mm_s', 'u_unlimited_mm_s', 'eso_z1_mm', 'eso_z2', 'eso_z3',
                  'gap_mm', 'limit_flags', 'period_us', 'compute_us', 'input_age_us', 'overrun',
-                 'substate')
+                 'fault_reason', 't_s', 'gap_stamp_s', 'encoder_stamp_s', 'substate')
 """The follow/status fields the report reads (``substate``: bags of FollowStatus revision 2)."""
-HOLDS = {1: 'corner_lock', 2: 'void_lock', 3: 'pierce', 4: 'thc_delay', 5: 'lift',
-         6: 'leapfrog', 7: 'hold', 8: 'edge_ahead', 9: 'retract'}
-"""FollowStatus.SUB_* the report counts: episodes and time (docs/interfaces.md)."""
 TIMING = ('period_us', 'compute_us', 'input_age_us')
 
 
@@ -141,8 +139,7 @@ class _StatusPass:
         self.zoom: dict[str, Any] = {}
         self.first: dict[str, float] = {}
         self.overruns = 0
-        self.holds = {code: [0, 0] for code in HOLDS}  # SUB_* -> [episodes, ticks]
-        self.prev_sub = 0
+        self.run_log = RunLog()  # faults, holds, time per state (ladrc_contract.run_log)
         self.n_done = 0
         self.prev_rate = (math.nan, math.nan)  # last (t, true gap): the gap rate across slices
 
@@ -215,15 +212,8 @@ class _StatusPass:
         for k in TIMING:
             self.timing[k].add(st[k])
         self.overruns += int(np.count_nonzero(st['overrun']))
-        sub = st.get('substate')
-        if sub is not None and sub.size:
-            sub = sub.astype(int)
-            before = np.r_[self.prev_sub, sub[:-1]]
-            for code, acc in self.holds.items():
-                now = sub == code
-                acc[0] += int(np.count_nonzero(now & (before != code)))
-                acc[1] += int(np.count_nonzero(now))
-            self.prev_sub = int(sub[-1])
+        self.run_log.add(st['stamp_s'], state, st['fault_reason'], st['t_s'] - st['gap_stamp_s'],
+                         st['t_s'] - st['encoder_stamp_s'], st.get('substate'))
         self.n_done += t.size
 
     def flush(self, final: bool, latest_ns: int) -> None:
@@ -271,6 +261,8 @@ class _StatusPass:
             st = part.get('follow/status')
             if st is not None:
                 for c in REPORT_FIELDS + ('timestamp_ns',):
+                    if c not in st:  # substate: not in bags of FollowStatus revision 1
+                        continue
                     self.pending[c] = (np.concatenate((self.pending[c], st[c]))
                                        if c in self.pending else st[c])
             self.flush(False, latest_ns)
@@ -333,30 +325,65 @@ def analyse_zoom(bag: Bag, progress: bool = False, extra: Any = None, zoom: bool
         raise BagError(f'{bag.path}: follow/status holds {run.n_done} readable message(s); '
                        'a report needs a run')
     name = 'idle' if run.state_seen else 'plain'
-    metrics = run.acc[name].result()
+    acc = run.acc[name]
+    metrics = acc.result()
     series = run.env[name].result()
+    run_summary = run.run_log.summary()
+    spec = run_spec(bag)
+    duration_s = float(series['t_s'][-1])
     report = {
         'bag': str(bag.path),
+        'title': run_title(bag, spec),
         'source': bag.custom_data.get('ladrc.source', 'unknown'),
         'scenario': bag.custom_data.get('ladrc.scenario', ''),
-        'duration_s': float(series['t_s'][-1]),
+        'duration_s': duration_s,
         'ticks': int(run.n_done),
         'h_s': run.first['h_s'],
         'error_against': ('true (sim/truth)' if truth is not None
                           else 'measured (follow/status gap_mm)'),
         'metrics': metrics.as_dict(),
+        # the error metrics' time base: target ticks from the followed time on
+        'metrics_time_base': {'followed_s': round(acc.error_ticks * run.first['h_s'], 4),
+                              'run_s': round(duration_s, 4)},
+        'states': run_summary['state_s'],
+        'final_state': run_summary['final_state'],
+        'faults': run_summary['faults'],
         'timing': {**{k: run.timing[k].stats() for k in TIMING}, 'overruns': run.overruns},
-        'holds': {HOLDS[c]: {'count': n, 'seconds': round(k * run.first['h_s'], 4)}
-                  for c, (n, k) in run.holds.items() if n},
+        'holds': run_summary['holds'],
         'messages': dict(bag.message_counts),
         'messages_lost': int(sum(run.lost.values())),
         'messages_lost_by_topic': run.lost,
         'v_max_mm_s': v_max,
     }
+    report['ok'], report['outcome'] = verdict(
+        run_summary, spec.get('expect_fault') is True)
     recording = _recording(bag)
     if recording is not None:
         report['recording'] = recording
     return report, series, (run.zoom[name].finish() if name in run.zoom else None)
+
+
+def run_spec(bag: Bag) -> dict[str, Any]:
+    """Return the bag's scenario or job file as a mapping (``run/scenario``); {} if none."""
+    text = read_text_topic(bag, 'run/scenario') or ''
+    try:
+        data = yaml.safe_load(text) if text else None
+        if isinstance(data, dict) and isinstance(data.get('job'), str):  # a job's bag
+            data = yaml.safe_load(data['job'])
+    except yaml.YAMLError:
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def run_title(bag: Bag, spec: dict[str, Any]) -> str:
+    """Return a report's title: the run (scenario or job, source, start time), not the folder."""
+    custom = bag.custom_data
+    what = str(spec.get('name') or custom.get('ladrc.scenario', '') or 'unnamed run')
+    source = {'recorder': 'live', '': 'unknown source'}.get(
+        custom.get('ladrc.source', ''), custom.get('ladrc.source', ''))
+    start = custom.get('ladrc.start_utc', '')
+    when = f', {start[:16].replace("T", " ")} UTC' if start else ''
+    return f'{what} ({source}{when})'
 
 
 def _save(fig: Any, out: Path, name: str) -> str:
@@ -367,6 +394,15 @@ def _save(fig: Any, out: Path, name: str) -> str:
     fig.savefig(out / name, dpi=110)
     plt.close(fig)
     return name
+
+
+def _mark_faults(ax: Any, report: dict[str, Any]) -> None:
+    """Draw each fault of the run as a red vertical line, numbered as in the report."""
+    for k, fault in enumerate(report.get('faults', []), 1):
+        ax.axvline(fault['t_s'], color='r', lw=1.2, ls='--',
+                   label='fault' if k == 1 else None)
+        ax.annotate(f'F{k}', (fault['t_s'], 1.0), xycoords=('data', 'axes fraction'),
+                    color='r', fontsize=8, ha='left', va='top')
 
 
 def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> list[str]:
@@ -384,6 +420,7 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
         ax.plot(t, series['true_gap_mm'], lw=0.8, label='true gap')
     ax.plot(t, series['td_x1_mm'], lw=0.8, ls='--', label='TD reference x1')
     ax.plot(t, series['target_mm'], lw=1.0, color='k', label='target')
+    _mark_faults(ax, report)
     ax.set_xlabel('t [s]')
     ax.set_ylabel('gap [mm]')
     ax.legend(loc='best', fontsize=8)
@@ -422,6 +459,7 @@ def _plots(series: dict[str, np.ndarray], report: dict[str, Any], out: Path) -> 
     ax.step(t, series['state'], where='post', lw=1, label='state')
     ax.fill_between(t, -0.4, -0.1, where=series['followed'].astype(bool), step='post',
                     color='g', alpha=0.5, label='followed')
+    _mark_faults(ax, report)
     ax.set_yticks(range(len(STATE_NAMES)), STATE_NAMES)
     ax.set_ylim(-0.5, len(STATE_NAMES) - 0.5)
     ax.set_xlabel('t [s]')
@@ -444,14 +482,39 @@ def _fmt_nested(v: Any) -> str:
 
 
 def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
-    lines = [f'# Report: {Path(report["bag"]).name}', '',
+    base = report['metrics_time_base']
+    lines = [f'# Report: {report["title"]}', '',
+             f'**{report["outcome"]}**', '',
+             f'- bag: `{report["bag"]}`',
              f'- source: {report["source"]}' + (f', scenario `{report["scenario"]}`'
                                                  if report['scenario'] else ''),
              f'- duration: {report["duration_s"]:.3f} s, {report["ticks"]} ticks, '
              f'h = {report["h_s"] * 1e3:.3f} ms',
+             '- time per state: ' + (', '.join(f'{k} {v:g} s' for k, v in
+                                               report['states'].items()) or 'none'),
              f'- error against the {report["error_against"]} gap',
              f'- messages lost (seq gaps): {report["messages_lost"]}', '',
-             '## Metrics', '', '| metric | value |', '| --- | --- |']
+             f'## Faults ({len(report["faults"])})', '']
+    if report['faults']:
+        lines += ['| # | t [s] | state before | reason | gap age [ms] | encoder age [ms] |',
+                  '| --- | --- | --- | --- | --- | --- |']
+        lines += [f'| F{k} | {f["t_s"]:.4f} | {f["state_before"]} | '
+                  f'{f["reason"].replace("|", "/")} | {_fmt(f["gap_age_ms"])} | '
+                  f'{_fmt(f["encoder_age_ms"])} |'
+                  for k, f in enumerate(report['faults'], 1)]
+    else:
+        lines += ['None.']
+    lines += ['', '## Holds', '']
+    if report.get('holds'):
+        lines += ['| hold (FollowStatus.substate) | episodes | time [s] |', '| --- | --- | --- |']
+        lines += [f'| {name} | {v["count"]} | {v["seconds"]:g} |'
+                  for name, v in report['holds'].items()]
+    else:
+        lines += ['None.']
+    lines += ['', '## Metrics', '',
+              f'Error metrics over the followed time: {base["followed_s"]:g} s of '
+              f'{base["run_s"]:g} s (ticks with a target, from the followed time on).', '',
+              '| metric | value |', '| --- | --- |']
     lines += [f'| {k} | {_fmt(v)} |' for k, v in report['metrics'].items()]
     lines += ['', '## Loop timing', '', '| quantity | p50 | p99 | max |',
               '| --- | --- | --- | --- |']
@@ -459,10 +522,6 @@ def _markdown(report: dict[str, Any], pngs: list[str]) -> str:
         s = report['timing'][k]
         lines.append(f'| {k} | {_fmt(s["p50"])} | {_fmt(s["p99"])} | {_fmt(s["max"])} |')
     lines += ['', f'Overruns: {report["timing"]["overruns"]}']
-    if report.get('holds'):
-        lines += ['', 'Sub-states (FollowStatus.substate): '
-                  + ', '.join(f'{name} {v["count"]}x, {v["seconds"]:g} s'
-                              for name, v in report['holds'].items())]
     job = report.get('job')
     if job:
         lines += ['', f'## Job `{job["name"]}`', '', '| figure | value |', '| --- | --- |']
