@@ -85,12 +85,23 @@ def test_emcy_text_details_and_frame_round_trip():
 
 
 # ---- PDOs --------------------------------------------------------------------------------
+CONTROLWORD = mapping.Entry(0x6040, 0, 16, False, 'controlword')
+TARGET_VELOCITY = mapping.Entry(0x60FF, 0, 32, True, 'target_velocity')
+STATUSWORD = mapping.Entry(0x6041, 0, 16, False, 'statusword')
+POSITION_ACTUAL = mapping.Entry(0x6064, 0, 32, True, 'position_actual')
+VELOCITY_ACTUAL = mapping.Entry(0x606C, 0, 32, True, 'velocity_actual')
+GAP = mapping.Entry(0x6401, 1, 16, True, 'gap')
+RPDO1 = mapping.Pdo('rpdo', 1, 0x200, 1, (CONTROLWORD, TARGET_VELOCITY))
+TPDO1 = mapping.Pdo('tpdo', 1, 0x180, 1, (STATUSWORD, POSITION_ACTUAL))
+TPDO2 = mapping.Pdo('tpdo', 2, 0x280, 1, (VELOCITY_ACTUAL, GAP))
+
+
 @pytest.mark.parametrize('pdo, values', [
-    (mapping.RPDO1, (0x000F, -2000)),
-    (mapping.RPDO1, (0xFFFF, INT32_MAX)),
-    (mapping.TPDO1, (0x0637, INT32_MIN)),
-    (mapping.TPDO2, (-1, -0x8000)),
-    (mapping.TPDO2, (123456, 0x7FFF)),
+    (RPDO1, (0x000F, -2000)),
+    (RPDO1, (0xFFFF, INT32_MAX)),
+    (TPDO1, (0x0637, INT32_MIN)),
+    (TPDO2, (-1, -0x8000)),
+    (TPDO2, (123456, 0x7FFF)),
 ])
 def test_pdo_pack_round_trip(pdo, values):
     data = mapping.pack(pdo.entries, values)
@@ -99,19 +110,9 @@ def test_pdo_pack_round_trip(pdo, values):
 
 
 def test_pdo_layout_is_little_endian_in_mapping_order():
-    assert mapping.pack(mapping.RPDO1.entries, (0x000F, -2)) == bytes.fromhex('0f00feffffff')
+    assert mapping.pack(RPDO1.entries, (0x000F, -2)) == bytes.fromhex('0f00feffffff')
     with pytest.raises(ValueError):
-        mapping.unpack(mapping.RPDO1.entries, bytes(5))  # a frame of the wrong length
+        mapping.unpack(RPDO1.entries, bytes(5))  # a frame of the wrong length
     with pytest.raises(ValueError):  # 10 bytes: no CAN PDO
-        mapping.Pdo('tpdo', 3, 0x380, 1, (mapping.STATUSWORD, mapping.POSITION_ACTUAL,
-                                          mapping.VELOCITY_ACTUAL))
-
-
-def test_sdo_mapping_sequence():
-    w = mapping.sdo_writes(mapping.RPDO1, node_id=5)
-    assert w == [(0x1400, 1, 0x80000205), (0x1600, 0, 0), (0x1600, 1, 0x60400010),
-                 (0x1600, 2, 0x60FF0020), (0x1600, 0, 2), (0x1400, 2, 1), (0x1400, 5, 10),
-                 (0x1400, 1, 0x205)]
-    t2 = mapping.sdo_writes(mapping.TPDO2, node_id=5)
-    assert (0x1A01, 2, 0x64010110) in t2 and t2[-1] == (0x1801, 1, 0x285)
+        mapping.Pdo('tpdo', 3, 0x380, 1, (STATUSWORD, POSITION_ACTUAL, VELOCITY_ACTUAL))
     assert mapping.decode_entry(0x64010110) == (0x6401, 1, 16)

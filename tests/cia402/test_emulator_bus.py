@@ -6,13 +6,13 @@ emulator (``python -m ladrc_sim.cia402.emulator``), and this test as the master 
 received both TPDOs of the previous one, so the drive advances exactly one period per SYNC and
 the verdict does not depend on load (no timing asserts; the timeouts are only for a dead peer).
 
-The master reads 0x1000 by SDO, writes the PDO mapping (ladrc_cia402.mapping) and the RPDO
-deadline, sets 0x6060 = 9 (CSV), starts the node (NMT), drives the state machine to Operation
-enabled with ``next_controlword`` in RPDO1 + SYNC, commands +2 mm/s for 200 cycles and sees
-position actual rise by 2 mm/s x 200 x h_s (in increments, within the velocity loop's lag);
-then it stops sending RPDOs and sees EMCY 0x8250 and the Fault state; a fault reset brings it
-back to Switch on disabled; the heartbeat reports Operational; two RPDOs in one cycle (two
-masters) fault it with EMCY 0x8200.
+The master reads 0x1000 by SDO, writes the plan of the shipped device file (its PDO layout
+and the RPDO deadline, ladrc_cia402.device_file), sets 0x6060 = 9 (CSV), starts the node
+(NMT), drives the state machine to Operation enabled with ``next_controlword`` in RPDO1 +
+SYNC, commands +2 mm/s for 200 cycles and sees position actual rise by 2 mm/s x 200 x h_s (in
+increments, within the velocity loop's lag); then it stops sending RPDOs and sees EMCY 0x8250
+and the Fault state; a fault reset brings it back to Switch on disabled; the heartbeat
+reports Operational; two RPDOs in one cycle (two masters) fault it with EMCY 0x8200.
 """
 
 from __future__ import annotations
@@ -27,10 +27,11 @@ import time
 
 import canopen
 from ladrc_cia402 import emcy, mapping
+from ladrc_cia402.device_file import load_device, make_plan
 from ladrc_cia402.ds402 import MODE_CYCLIC_SYNC_VELOCITY, Goal, State, next_controlword, state_of
 from ladrc_cia402.units import DriveUnits
 from ladrc_sim.cia402.bus import start_bus_server
-from ladrc_sim.cia402.can_drive import bus_kwargs, default_eds
+from ladrc_sim.cia402.can_drive import bus_kwargs, default_device, default_eds
 from ladrc_sim.headless.scenario import load_scenario
 from ladrc_sim.models.axis import Axis
 import pytest
@@ -40,6 +41,8 @@ SRC = ROOT / 'ros2_ws' / 'src'
 NODE_ID = 5
 TIMEOUT_S = 30.0  # a dead peer, not a slow one: lock step waits as long as it takes
 H_S = 0.0005  # the EDS's 0x1006 = 500 us
+PLAN = make_plan(load_device(default_device()), H_S, rpdo_deadline_ms=10)
+RPDO1 = PLAN.rpdos[0]
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -63,8 +66,9 @@ class Master:
         self.tpdo: queue.Queue = queue.Queue()
         self.emcy: queue.Queue = queue.Queue()
         self.boot: queue.Queue = queue.Queue()
-        for pdo in (mapping.TPDO1, mapping.TPDO2):
-            self.net.subscribe(pdo.cob_id(NODE_ID), self._on_tpdo)
+        self.tables = {pdo.cob_id(NODE_ID): pdo.entries for pdo in PLAN.tpdos}
+        for cob in self.tables:
+            self.net.subscribe(cob, self._on_tpdo)
         self.net.subscribe(emcy.EMCY_COB_BASE + NODE_ID,
                            lambda cid, data, ts: self.emcy.put(emcy.unpack_emcy(data)))
         self.net.subscribe(0x700 + NODE_ID, lambda cid, data, ts: self.boot.put(bytes(data)))
@@ -81,19 +85,21 @@ class Master:
         """One lock-step cycle: RPDO (unless None), SYNC, wait for TPDO1 and TPDO2."""
         if cw is not None:
             self.cw = cw
-            data = mapping.pack(mapping.RPDO1.entries, (cw, target))
-            self.net.send_message(mapping.RPDO1.cob_id(NODE_ID), data)
+            data = mapping.pack(RPDO1.entries, (cw, target))
+            self.net.send_message(RPDO1.cob_id(NODE_ID), data)
             if extra_rpdo:
-                self.net.send_message(mapping.RPDO1.cob_id(NODE_ID), data)
+                self.net.send_message(RPDO1.cob_id(NODE_ID), data)
         self.net.send_message(mapping.SYNC_COB_ID, b'')
         got = set()
-        while len(got) < 2:
+        values = {}
+        while len(got) < len(self.tables):
             can_id, data = self.tpdo.get(timeout=TIMEOUT_S)
-            if can_id == mapping.TPDO1.cob_id(NODE_ID):
-                self.statusword, self.position = mapping.unpack(mapping.TPDO1.entries, data)
-            else:
-                self.velocity, self.analog = mapping.unpack(mapping.TPDO2.entries, data)
+            entries = self.tables[can_id]
+            values.update(zip((e.name for e in entries), mapping.unpack(entries, data),
+                                 strict=True))
             got.add(can_id)
+        self.statusword, self.position = values['statusword'], values['position_actual']
+        self.velocity, self.analog = values['velocity_actual'], values['gap']
 
     @property
     def state(self) -> State:
@@ -149,10 +155,14 @@ def test_lock_step_csv_and_the_rpdo_watchdog(bus, tmp_path):
         sdo = master.node.sdo
         sdo.RESPONSE_TIMEOUT = 5.0
         assert sdo[0x1000].raw == 0x00020192
-        for pdo in mapping.DEFAULT_MAPPING:
-            for index, sub, value in mapping.sdo_writes(pdo, NODE_ID):
-                sdo[index][sub].raw = value
-        assert sdo[0x1400][5].raw == mapping.RPDO1.event_timer_ms
+        for w in PLAN.writes:
+            if w.index == 0x1006:
+                continue  # read below
+            if w.index in (0x6007,):
+                sdo[w.index].raw = w.value
+            else:
+                sdo[w.index][w.subindex].raw = w.value
+        assert sdo[0x1400][5].raw == 10
         sdo[0x6060].raw = MODE_CYCLIC_SYNC_VELOCITY
         assert sdo[0x6061].raw == MODE_CYCLIC_SYNC_VELOCITY
         with pytest.raises(canopen.SdoAbortedError):

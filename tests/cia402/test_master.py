@@ -9,16 +9,29 @@ the fault reason, the fault reset, and a downward command never rounded larger.
 
 from __future__ import annotations
 
+from dataclasses import replace
 import math
 
 from ladrc_cia402 import emcy, mapping
+from ladrc_cia402.device_file import load_device, make_plan
 from ladrc_cia402.ds402 import CW_QUICK_STOP, MODE_CYCLIC_SYNC_VELOCITY, State
 from ladrc_cia402.master import Command, ConfigError, DriverParams, Master, configure
+from ladrc_sim.cia402.can_drive import default_device
 from ladrc_sim.cia402.device import Cia402Device
 from ladrc_sim.models.axis import Axis, AxisParams
 import pytest
 
 NODE = 5
+DEVICE = str(default_device())  # the shipped drive's device file
+PLAN = make_plan(load_device(DEVICE))
+
+
+def _entries(role: str) -> tuple[int, tuple]:
+    """Return the COB-ID and entries of the shipped plan's TPDO that carries ``role``."""
+    for p in PLAN.tpdos:
+        if any(e.name == role for e in p.entries):
+            return p.cob_id(NODE), p.entries
+    raise KeyError(role)
 RUN = Command(0.0, False, admitted=True, commanded=True)
 
 
@@ -38,8 +51,8 @@ class FakeBus:
     def send(self, cob: int, data: bytes) -> None:
         if self.broken:
             raise OSError('bus off')
-        if cob == mapping.RPDO1.cob_id(NODE):
-            self.rx = mapping.unpack(mapping.RPDO1.entries, data)
+        if cob == PLAN.rpdos[0].cob_id(NODE):
+            self.rx = mapping.unpack(PLAN.rpdos[0].entries, data)
             self.rpdos.append(self.rx)
         elif cob == mapping.SYNC_COB_ID:
             d = self.device
@@ -50,15 +63,21 @@ class FakeBus:
             d.events.clear()
             if self.silent:
                 return
-            self.master.on_frame(mapping.TPDO1.cob_id(NODE), mapping.pack(
-                mapping.TPDO1.entries, (d.statusword, d.position_increments)))
-            self.master.on_frame(mapping.TPDO2.cob_id(NODE), mapping.pack(
-                mapping.TPDO2.entries, (d.velocity_units, self.counts)))
+            values = {'statusword': d.statusword, 'position_actual': d.position_increments,
+                      'velocity_actual': d.velocity_units, 'gap': self.counts}
+            for p in PLAN.tpdos:
+                self.master.on_frame(p.cob_id(NODE), mapping.pack(
+                    p.entries, tuple(values[e.name] for e in p.entries)))
 
 
 def _pair(**kw) -> tuple[Master, FakeBus]:
     bus = FakeBus()
-    m = Master(DriverParams(node_id=NODE, **kw), bus.send)
+    vu = kw.pop('velocity_units_per_mm_s', None)
+    plan = PLAN
+    if vu is not None:  # the device file's units
+        dev = load_device(DEVICE)
+        plan = make_plan(replace(dev, units=replace(dev.units, velocity_units_per_mm_s=vu)))
+    m = Master(DriverParams(device=DEVICE, **kw), bus.send, plan)
     bus.master = m
     return m, bus
 
@@ -227,12 +246,12 @@ class _Nmt:
 def test_configure_writes_mapping_mode_period_and_deadline():
     sdo, nmt = _Sdo(), _Nmt()
     dict.__setitem__(sdo, (0x1000, 0), 0x00020192)
-    line = configure(sdo, nmt, DriverParams(node_id=NODE, rpdo_deadline_ms=7, period_s=0.001))
+    line = configure(sdo, nmt, DriverParams(device=DEVICE, rpdo_deadline_ms=7, period_s=0.001))
     assert nmt.state == 'OPERATIONAL' and 'CSV' in line
     assert dict.__getitem__(sdo, (0x1400, 5)) == 7
     assert dict.__getitem__(sdo, (0x1006, 0)) == 1000
     assert dict.__getitem__(sdo, (0x6060, 0)) == 9
-    assert dict.__getitem__(sdo, (0x1600, 2)) == mapping.TARGET_VELOCITY.word
+    assert dict.__getitem__(sdo, (0x1600, 2)) == 0x60FF0020  # INTEGER32 from the EDS
     assert dict.__getitem__(sdo, (0x1400, 1)) == 0x205
 
 
@@ -240,7 +259,7 @@ def test_configure_refuses_a_non_402_device_in_one_line():
     sdo, nmt = _Sdo(), _Nmt()
     dict.__setitem__(sdo, (0x1000, 0), 0x00000191)  # CiA 401 I/O module
     with pytest.raises(ConfigError, match='profile 401, not a CiA 402 drive'):
-        configure(sdo, nmt, DriverParams(node_id=NODE))
+        configure(sdo, nmt, DriverParams(device=DEVICE))
     assert nmt.state == 'PRE-OPERATIONAL'
 
 
@@ -252,7 +271,7 @@ def test_parameters_are_declared_once_with_ranges():
 class _SdoWithOd(_Sdo):
     """A drive whose EDS has 0x6502 (supported modes) and 0x6007 (abort connection)."""
 
-    od = {0x6502, 0x6007}
+    od = {0x6502: None, 0x6007: None}
 
 
 @pytest.mark.parametrize('modes, mode, name', [(0x104, 9, 'CSV'), (0x004, 3, 'profile velocity')])
@@ -261,8 +280,8 @@ def test_csv_where_the_drive_has_it_else_profile_velocity_and_quick_stop_on_a_lo
     sdo, nmt = _SdoWithOd(), _Nmt()
     dict.__setitem__(sdo, (0x1000, 0), 0x00020192)
     dict.__setitem__(sdo, (0x6502, 0), modes)
-    line = configure(sdo, nmt, DriverParams(node_id=NODE))
-    assert f'), {name}, SYNC' in line
+    line = configure(sdo, nmt, DriverParams(device=DEVICE))
+    assert f', {name}, SYNC' in line
     assert dict.__getitem__(sdo, (0x6060, 0)) == mode
     assert dict.__getitem__(sdo, (0x6007, 0)) == 3  # abort connection: quick stop
 
@@ -272,5 +291,5 @@ def test_a_drive_without_a_velocity_mode_is_refused_in_one_line():
     dict.__setitem__(sdo, (0x1000, 0), 0x00020192)
     dict.__setitem__(sdo, (0x6502, 0), 0x1)  # profile position only
     with pytest.raises(ConfigError, match='neither cyclic synchronous velocity nor profile'):
-        configure(sdo, nmt, DriverParams(node_id=NODE))
+        configure(sdo, nmt, DriverParams(device=DEVICE))
     assert nmt.state == 'PRE-OPERATIONAL'

@@ -12,13 +12,13 @@ setup(
     # under share/ for users who look for it the ROS way.
     package_data={'ladrc_sim.headless': ['scenarios/*.yaml'],
                   'ladrc_sim.job': ['jobs/*.yaml', 'jobs/*.dxf', 'jobs/*.LICENSE'],
-                  'ladrc_sim.cia402': ['*.eds']},
+                  'ladrc_sim.cia402': ['*.eds', '*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/scenarios', glob('ladrc_sim/headless/scenarios/*.yaml')),
         ('share/' + package_name + '/jobs', glob('ladrc_sim/job/jobs/*')),
-        ('share/' + package_name + '/cia402', glob('ladrc_sim/cia402/*.eds')),
+        ('share/' + package_name + '/cia402', glob('ladrc_sim/cia402/*.eds') + glob('ladrc_sim/cia402/*.yaml')),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

@@ -1,6 +1,6 @@
 r"""The CiA 402 driver node: the drive contract on ROS, a CANopen master on the bus.
 
-    ros2 run ladrc_cia402 driver_node --ros-args -p eds:=DRIVE.eds -p node_id:=5 \\
+    ros2 run ladrc_cia402 driver_node --ros-args -p device:=DRIVE.yaml \\
         -p bus_interface:=socketcan -p bus_channel:=can0
 
 ROS side (the contract, docs/interfaces.md): ``axis/velocity_command`` in (through the commander
@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 import signal
 import sys
 import threading
@@ -270,7 +269,7 @@ class DriverNode(LoopNode):
             if not self.running:
                 return
             if not sample.fresh:
-                raise DriverAbort(f'lock step: no TPDO from node {self.p.node_id} within '
+                raise DriverAbort(f'lock step: no TPDO from node {master.node_id} within '
                                   f'{self.p.lockstep_timeout_s:g} s at cycle {k} '
                                   f'({master.fault_reason or "the drive stopped"})')
             self.publish(sample, k * self.period_ns)
@@ -302,7 +301,7 @@ class DriverNode(LoopNode):
     def _publish_diagnostics(self) -> None:
         m = self.master
         st = DiagnosticStatus(name=f'{self.get_fully_qualified_name().lstrip("/")}: drive',
-                              hardware_id=f'cia402 node {self.p.node_id}')
+                              hardware_id=f'cia402 node {m.node_id if m else self.p.node_id}')
         last = self.last
         with self.mutex:
             reason = self.lock.fault_reason or self.watchdog_reason
@@ -339,31 +338,55 @@ def _connect(p: DriverParams):
     return net
 
 
-def _remote_node(net, p: DriverParams):
+def _remote_node(net, node_id: int, eds: str, od=None):
     import canopen
 
-    eds = Path(p.eds)
-    if not p.eds:
-        raise ConfigError("no EDS: give the drive's EDS or DCF with -p eds:=PATH")
-    if not eds.is_file():
-        raise ConfigError(f'{eds}: no such EDS/DCF file')
-    try:
-        od = canopen.import_od(str(eds), p.node_id)
-    except Exception as exc:  # noqa: BLE001 -- a malformed file: one line
-        raise ConfigError(f'{eds}: not a readable EDS/DCF ({exc})') from None
+    if od is None:
+        try:
+            od = canopen.import_od(str(eds), node_id)
+        except Exception as exc:  # noqa: BLE001 -- a malformed file: one line
+            raise ConfigError(f'{eds}: not a readable EDS/DCF ({exc})') from None
     dcf_id = getattr(od, 'node_id', None)
-    if eds.suffix.lower() == '.dcf' and dcf_id not in (None, p.node_id):
-        raise ConfigError(f'{eds}: the DCF is for node {dcf_id}, node_id is {p.node_id}')
-    node = canopen.RemoteNode(p.node_id, od)
+    if str(eds).lower().endswith('.dcf') and dcf_id not in (None, node_id):
+        raise ConfigError(f'{eds}: the DCF is for node {dcf_id}, node_id is {node_id}')
+    node = canopen.RemoteNode(node_id, od)
     net.add_node(node)
     node.sdo.RESPONSE_TIMEOUT = 1.0
     return node
 
 
+class Lifeline(threading.Thread):
+    """The driver's side of the drive's watchdog: its heartbeat (producer) or node guarding.
+
+    Heartbeat: every ``period_s`` the frame 0x700 + ``master_id`` with state 5 (operational);
+    node guarding: every ``period_s`` a remote frame 0x700 + the drive's id. Stops with the
+    process (a SIGKILLed driver sends no more: the drive's consumer time runs out).
+    """
+
+    def __init__(self, net, cob: int, period_s: float, remote: bool) -> None:
+        super().__init__(name='cia402-lifeline', daemon=True)
+        self.net, self.cob, self.period_s, self.remote = net, cob, period_s, remote
+        self.stop = threading.Event()
+        self.sent = 0
+
+    def run(self) -> None:
+        """Send until :attr:`stop`; a bus error ends the thread (the drive then stops)."""
+        while not self.stop.is_set():
+            try:
+                if self.remote:
+                    self.net.send_message(self.cob, b'', remote=True)
+                else:
+                    self.net.send_message(self.cob, b'\x05')
+                self.sent += 1
+            except Exception:  # noqa: BLE001 -- the bus is gone: the drive's watchdog acts
+                return
+            self.stop.wait(self.period_s)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``ros2 run ladrc_cia402 driver_node --ros-args -p eds:=…``."""
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = services = net = None
+    node = services = net = lifeline = None
     master = None
     try:
         try:
@@ -394,8 +417,27 @@ def main(argv: list[str] | None = None) -> int:
         services = ServiceThread(node.context, (node,))
         services.start(p.thread_priority - 1 if fifo else 0)
         try:
-            remote = _remote_node(net, p)
-            node.config_line = configure(remote.sdo, remote.nmt, p)
+            from .device_file import PlanError, plan_text
+            try:
+                plan = p.plan()
+            except PlanError as exc:
+                raise ConfigError(str(exc)) from None
+            for line in plan_text(plan).splitlines():
+                node.get_logger().info(line)
+            remote = _remote_node(net, plan.node_id, plan.eds_path)
+            io = None
+            if plan.io_node_id:
+                io_node = _remote_node(net, plan.io_node_id, plan.device.gap.dcf, plan.io_od)
+                io = (io_node.sdo, io_node.nmt)
+            if plan.heartbeat_producer_ms:
+                lifeline = Lifeline(net, 0x700 + plan.device.master_node_id,
+                                    plan.heartbeat_producer_ms * 1e-3, remote=False)
+                lifeline.start()
+            node.config_line = configure(remote.sdo, remote.nmt, p, plan=plan, io=io)
+            if plan.guard_time_ms:
+                lifeline = Lifeline(net, 0x700 + plan.node_id, plan.guard_time_ms * 1e-3,
+                                    remote=True)
+                lifeline.start()
         except ConfigError as exc:
             print(f'driver_node: {exc}', file=sys.stderr)
             return 2
@@ -404,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         def send(cob_id: int, data: bytes) -> None:
             net.send_message(cob_id, data)
 
-        master = Master(p, send)
+        master = Master(p, send, plan)
         for cob in master.frame_ids:
             net.subscribe(cob, lambda can_id, data, ts: master.on_frame(can_id, data))
         node.master = master
@@ -436,11 +478,12 @@ def main(argv: list[str] | None = None) -> int:
                 'samples_published': node.seq if node is not None else 0,
                 'late_cycles': node.late_cycles if node is not None else 0}), flush=True)
             try:  # leave the drive at rest: quick stop, then a disabled drive
-                master.send(master.cob_rpdo, mapping.pack(mapping.RPDO1.entries,
-                                                          (ds402.CW_QUICK_STOP, 0)))
+                master.send_rpdos(ds402.CW_QUICK_STOP, 0)
                 master.send(mapping.SYNC_COB_ID, b'')
             except Exception:  # noqa: BLE001, S110 -- the bus is gone: the deadline stops it
                 pass
+        if lifeline is not None:
+            lifeline.stop.set()
         if net is not None:
             try:
                 net.disconnect()

@@ -1,20 +1,9 @@
-"""The PDO mapping the driver writes by SDO at start, as data, and the PDO packing both sides use.
+"""PDOs as data, the CiA 301 sequence that maps one, and the PDO packing both sides use.
 
-Default mapping (node id ``n``; transmission type 1 = on every SYNC for the TPDOs, 1 =
-synchronous for the RPDO: applied at the next SYNC):
+The layout of a drive is not fixed here: :mod:`.device_file` derives it from the device file's
+roles and the drive's EDS (or takes the file's explicit one). Data types come from the EDS.
 
-* RPDO1 (COB-ID 0x200 + n, master -> drive): controlword 0x6040 (u16), target velocity 0x60FF
-  (i32): 6 bytes. Its event timer (0x1400 sub 5, ms) is the drive's RPDO deadline.
-* TPDO1 (0x180 + n, drive -> master): statusword 0x6041 (u16), position actual 0x6064 (i32).
-* TPDO2 (0x280 + n): velocity actual 0x606C (i32) and the capacitive sensor's analog input
-  0x6401 sub 1 (i16, CiA 401) on the same SYNC: the encoder and the gap of one sample instant.
-
-A CAN PDO carries at most 8 bytes: statusword + position + velocity (10 bytes) do not fit one
-TPDO, so velocity actual travels with the analog input in TPDO2.
-
-:func:`sdo_writes` is the CiA 301 sequence that writes a mapping (disable the PDO by bit 31
-of its COB-ID, clear the count, write the entries, set the count, set the transmission type and
-event timer, enable); :func:`pack` / :func:`unpack` turn values into the PDO's bytes and back
+:func:`pack` / :func:`unpack` turn values into the PDO's bytes and back
 (little-endian, in mapping order).
 """
 
@@ -106,31 +95,6 @@ def unpack(entries: tuple[Entry, ...], data: bytes) -> tuple[int, ...]:
     if len(data) != st.size:
         raise ValueError(f'PDO of {len(data)} bytes, the mapping has {st.size}')
     return st.unpack(bytes(data))
-
-
-CONTROLWORD = Entry(0x6040, 0, 16, False, 'controlword')
-TARGET_VELOCITY = Entry(0x60FF, 0, 32, True, 'target_velocity')
-STATUSWORD = Entry(0x6041, 0, 16, False, 'statusword')
-POSITION_ACTUAL = Entry(0x6064, 0, 32, True, 'position_actual')
-VELOCITY_ACTUAL = Entry(0x606C, 0, 32, True, 'velocity_actual')
-ANALOG_INPUT_1 = Entry(0x6401, 1, 16, True, 'analog_input_1')
-
-RPDO1 = Pdo('rpdo', 1, 0x200, 1, (CONTROLWORD, TARGET_VELOCITY), event_timer_ms=10)
-TPDO1 = Pdo('tpdo', 1, 0x180, 1, (STATUSWORD, POSITION_ACTUAL))
-TPDO2 = Pdo('tpdo', 2, 0x280, 1, (VELOCITY_ACTUAL, ANALOG_INPUT_1))
-DEFAULT_MAPPING: tuple[Pdo, ...] = (RPDO1, TPDO1, TPDO2)
-
-
-def sdo_writes(pdo: Pdo, node_id: int) -> list[tuple[int, int, int]]:
-    """``(index, subindex, value)`` SDO downloads that configure ``pdo`` (CiA 301 order)."""
-    cob = pdo.cob_id(node_id)
-    c, m = pdo.comm_index, pdo.map_index
-    writes = [(c, 1, cob | COB_ID_INVALID), (m, 0, 0)]
-    writes += [(m, i, e.word) for i, e in enumerate(pdo.entries, start=1)]
-    writes += [(m, 0, len(pdo.entries)), (c, 2, pdo.transmission_type)]
-    writes += [(c, 5, pdo.event_timer_ms)]
-    writes.append((c, 1, cob))
-    return writes
 
 
 def decode_entry(word: int) -> tuple[int, int, int]:

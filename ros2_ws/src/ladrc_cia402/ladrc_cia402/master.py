@@ -32,7 +32,7 @@ under a lock and wakes the waiting cycle.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 import math
 import threading
 import time
@@ -42,7 +42,11 @@ from ladrc_contract.schema import Section, param
 
 from . import ds402, emcy, mapping
 from .ds402 import Goal, State
-from .units import AnalogScale, DriveUnits
+
+try:
+    from canopen.objectdictionary import ODVariable as _ODVar
+except ImportError:  # pragma: no cover
+    _ODVar = object
 
 DEVICE_TYPE = 0x1000
 COMM_CYCLE = 0x1006
@@ -62,26 +66,14 @@ class DriverParams(Section):
                                runtime=False)
     bus_channel: str = param('ws://127.0.0.1:54701/', '', 'python-can channel: ws://HOST:PORT/ '
                              '(remote) or can0 (socketcan)', runtime=False)
-    eds: str = param('', '', "the drive's EDS or DCF file (its object dictionary: the data types "
-                     'of the objects configured by SDO)', runtime=False)
-    node_id: int = param(5, '1', "the drive's CANopen node id", ge=1, le=127, runtime=False)
+    device: str = param('', '', "the drive's device file (YAML: node id, EDS, objects by "
+                        'role, units, gap source, watchdog; docs/cia402.md)', runtime=False)
+    eds: str = param('', '', "without a device file: the drive's EDS or DCF, its standard "
+                     'CiA 402 objects and the analog input 0x6401:01', runtime=False)
+    node_id: int = param(5, '1', "without a device file: the drive's CANopen node id",
+                         ge=1, le=127, runtime=False)
     period_s: float = param(0.0005, 's', 'the SYNC period (0x1006) = the controller period h_s',
                             ge=0.0001, le=0.1, runtime=False)
-    increments_per_mm: float = param(1000.0, 'inc/mm', 'encoder increments per mm (0x6064)',
-                                     gt=0.0, le=1e9, runtime=False)
-    velocity_units_per_mm_s: float = param(1000.0, '1/(mm/s)', "the drive's velocity units "
-                                           'per mm/s (0x606C, 0x60FF)', gt=0.0, le=1e9,
-                                           runtime=False)
-    analog_counts_per_mm: float = param(1000.0, 'counts/mm', 'capacitive analog input 0x6401 '
-                                        'sub 1: counts per mm of gap', gt=0.0, le=1e6,
-                                        runtime=False)
-    analog_invalid_count: int = param(0x7FFF, '1', 'the analog count of a reading out of range '
-                                      '(valid false, status out of range)', ge=-0x8000,
-                                      le=0x7FFF, runtime=False)
-    analog_contact_count: int = param(-0x8000, '1', "the analog count of the amplifier's "
-                                      'short-circuit output: the nozzle touches the sheet '
-                                      '(status collision)', ge=-0x8000, le=0x7FFF,
-                                      runtime=False)
     rpdo_deadline_ms: int = param(10, 'ms', "the drive's RPDO deadline (0x1400 sub 5): no "
                                   'RPDO for this long -> the drive faults and brakes', ge=1,
                                   le=65535, runtime=False)
@@ -121,14 +113,20 @@ class DriverParams(Section):
     lock_memory: bool = param(True, '', 'mlockall: no page faults in the cycle',
                               runtime=False)
 
-    def units(self) -> DriveUnits:
-        """Return the drive's integer units."""
-        return DriveUnits(self.increments_per_mm, self.velocity_units_per_mm_s)
+    def device_file(self):
+        """Return the device file (its path, or the default device of ``eds``)."""
+        from .device_file import default_device, load_device
+        if self.device:
+            return load_device(self.device)
+        if not self.eds:
+            raise ConfigError("no device file: give the drive's with -p device:=FILE "
+                              '(docs/cia402.md)')
+        return default_device(self.eds, self.node_id)
 
-    def analog(self) -> AnalogScale:
-        """Return the analog input's scaling."""
-        return AnalogScale(self.analog_counts_per_mm, self.analog_invalid_count,
-                           self.analog_contact_count)
+    def plan(self, od: Any = None):
+        """Return the plan of the drive (:func:`.device_file.make_plan`); PlanError in one line."""
+        from .device_file import make_plan
+        return make_plan(self.device_file(), self.period_s, self.rpdo_deadline_ms, od)
 
 
 class ConfigError(RuntimeError):
@@ -165,14 +163,23 @@ class Sample:
     target: int
 
 
-def configure(sdo: Any, nmt: Any, p: DriverParams, sleep: Callable[[float], None] = time.sleep
-              ) -> str:
-    """Configure the drive by SDO (module docstring), then NMT start; return one info line.
+def configure(sdo: Any, nmt: Any, p: DriverParams, sleep: Callable[[float], None] = time.sleep,
+              plan: Any = None, io: Any = None) -> str:
+    """Configure the drive by SDO as ``plan`` says (module docstring), then NMT start.
 
     ``sdo`` is a canopen ``SdoClient`` (``sdo[index][sub].raw``, ``sdo[index].raw``), ``nmt``
-    its node's NMT (``state = 'OPERATIONAL'``). The first read is retried until
-    ``p.sdo_timeout_s`` (a drive still booting); any later refusal raises :class:`ConfigError`.
+    its node's NMT (``state = 'OPERATIONAL'``); ``io``: the I/O node's ``(sdo, nmt)`` where
+    the gap is on one. ``plan``: :meth:`DriverParams.plan` (made here if None). The first read
+    is retried until ``p.sdo_timeout_s`` (a drive still booting); any later refusal raises
+    :class:`ConfigError` (one line). Returns one info line.
     """
+    from .device_file import PlanError
+    if plan is None:
+        try:
+            plan = p.plan()
+        except PlanError as exc:
+            raise ConfigError(str(exc)) from None
+    n = plan.node_id
     limit = time.monotonic() + p.sdo_timeout_s
     while True:
         try:
@@ -180,42 +187,70 @@ def configure(sdo: Any, nmt: Any, p: DriverParams, sleep: Callable[[float], None
             break
         except Exception as exc:  # noqa: BLE001 -- a timeout while the drive boots
             if time.monotonic() > limit:
-                raise ConfigError(f'node {p.node_id}: no SDO answer for 0x1000 within '
+                raise ConfigError(f'node {n}: no SDO answer for 0x1000 within '
                                   f'{p.sdo_timeout_s:g} s ({exc})') from None
             sleep(0.2)
     if device_type & 0xFFFF != DEVICE_PROFILE_402:
-        raise ConfigError(f'node {p.node_id}: device type 0x{device_type:08X} is profile '
+        raise ConfigError(f'node {n}: device type 0x{device_type:08X} is profile '
                           f'{device_type & 0xFFFF}, not a CiA 402 drive')
-    rpdo = replace(mapping.RPDO1, event_timer_ms=p.rpdo_deadline_ms)
+    w = None
     try:
-        for pdo in (rpdo, mapping.TPDO1, mapping.TPDO2):
-            for index, sub, value in mapping.sdo_writes(pdo, p.node_id):
-                sdo[index][sub].raw = value
-        if int(sdo[0x1400][5].raw) != p.rpdo_deadline_ms:
-            raise ConfigError(f'node {p.node_id}: RPDO deadline not taken')
-        mode = _velocity_mode(sdo, p.node_id)
-        sdo[ds402.MODES_OF_OPERATION].raw = mode
-        shown = int(sdo[ds402.MODES_OF_OPERATION_DISPLAY].raw)
+        for w in plan.writes:
+            _write(sdo if w.node_id == n else io[0], w.index, w.subindex, w.value)
+        w = None
+        if plan.watchdog == 'rpdo_event_timer':
+            r1 = plan.rpdos[0]
+            if int(sdo[r1.comm_index][5].raw) == 0:
+                raise ConfigError(f'node {n}: 0x{r1.comm_index:04X}:05 RPDO1 event timer '
+                                  'not taken (reads 0)')
+        roles = plan.roles
+        mode = _velocity_mode(sdo, n)
+        mo, md = roles['modes_of_operation'], roles['modes_of_operation_display']
+        _obj(sdo, mo).raw = mode
+        shown = int(_obj(sdo, md).raw)
         if shown != mode:
-            raise ConfigError(f'node {p.node_id}: 0x6061 shows mode {shown} after 0x6060 = '
-                              f'{mode} ({ds402.MODE_NAMES[mode]})')
-        if _has(sdo, ABORT_CONNECTION):
-            # what the drive does when its master is lost: quick stop (CiA 402 0x6007 = 3)
-            sdo[ABORT_CONNECTION].raw = ABORT_QUICK_STOP
+            raise ConfigError(f'node {n}: 0x{md.index:04X} shows mode {shown} after '
+                              f'0x{mo.index:04X} = {mode} ({ds402.MODE_NAMES[mode]})')
+        if plan.has_abort_connection and plan.watchdog != 'none':
             if int(sdo[ABORT_CONNECTION].raw) != ABORT_QUICK_STOP:
-                raise ConfigError(f'node {p.node_id}: 0x6007 (abort connection) not quick stop')
+                raise ConfigError(f'node {n}: 0x6007 (abort connection) not quick stop')
         cycle_us = int(round(p.period_s * 1e6))
-        sdo[COMM_CYCLE].raw = cycle_us
-        if int(sdo[COMM_CYCLE].raw) != cycle_us:
-            raise ConfigError(f'node {p.node_id}: 0x1006 not {cycle_us} us')
+        if plan.has_comm_cycle and int(sdo[COMM_CYCLE].raw) != cycle_us:
+            raise ConfigError(f'node {n}: 0x1006 not {cycle_us} us')
     except ConfigError:
         raise
     except Exception as exc:  # noqa: BLE001 -- an SDO abort: one line
-        raise ConfigError(f'node {p.node_id}: configuration refused: {exc}') from None
+        at = (f' at node {w.node_id} 0x{w.index:04X}:{w.subindex:02X} ({w.text})'
+              if w is not None else '')
+        raise ConfigError(f'node {n}: configuration refused{at}: {exc}') from None
+    if io is not None:
+        io[1].state = 'OPERATIONAL'
     nmt.state = 'OPERATIONAL'
     name = 'CSV' if mode == ds402.MODE_CYCLIC_SYNC_VELOCITY else 'profile velocity'
-    return (f'node {p.node_id}: CiA 402 (0x{device_type:08X}), {name}, SYNC {cycle_us} us, '
-            f'RPDO deadline {p.rpdo_deadline_ms} ms, operational')
+    wd = {'rpdo_event_timer': f'RPDO deadline {plan.deadline_ms} ms',
+          'heartbeat': f'heartbeat consumer {plan.device.heartbeat_consumer_ms} ms',
+          'node_guarding': f'node guarding {plan.guard_time_ms} ms x '
+                           f'{plan.device.life_time_factor}',
+          'none': 'no watchdog'}[plan.watchdog]
+    return (f'node {n}: CiA 402 (0x{device_type:08X}), gap {plan.gap_source}, {name}, '
+            f'SYNC {cycle_us} us, {wd}, operational')
+
+
+def _obj(sdo: Any, e: Any) -> Any:
+    """Return the SDO variable of a role's entry (a variable or a sub of an array/record)."""
+    od = getattr(sdo, 'od', None)
+    if od is not None and e.index in od and isinstance(od[e.index], _ODVar):
+        return sdo[e.index]
+    return sdo[e.index][e.subindex]
+
+
+def _write(sdo: Any, index: int, sub: int, value: int) -> None:
+    """One SDO download (a variable object by its index, else index and sub)."""
+    od = getattr(sdo, 'od', None)
+    if od is not None and index in od and isinstance(od[index], _ODVar):
+        sdo[index].raw = value
+    else:
+        sdo[index][sub].raw = value
 
 
 def _has(sdo: Any, index: int) -> bool:
@@ -229,8 +264,9 @@ def _has(sdo: Any, index: int) -> bool:
 def _velocity_mode(sdo: Any, node_id: int) -> int:
     """Cyclic synchronous velocity where the drive has it, else profile velocity (0x6502).
 
-    Without 0x6502 in the EDS the drive is taken to have CSV (0x6060 = 9 is then checked by
-    0x6061). Neither mode: one line.
+    0x6502 is read by SDO from the drive (an EDS often has no value for it). Without 0x6502
+    in the EDS the drive is taken to have CSV (0x6060 = 9 is then checked by 0x6061). Neither
+    mode: one line.
     """
     if not _has(sdo, SUPPORTED_MODES):
         return ds402.MODE_CYCLIC_SYNC_VELOCITY
@@ -246,30 +282,42 @@ def _velocity_mode(sdo: Any, node_id: int) -> int:
 class Master:
     """The cyclic master (module docstring); :meth:`cycle` once per period."""
 
-    def __init__(self, p: DriverParams, send: Callable[[int, bytes], None]) -> None:
-        """``send(cob_id, data)``: put one frame on the bus (raises on a bus error)."""
+    def __init__(self, p: DriverParams, send: Callable[[int, bytes], None],
+                 plan: Any = None) -> None:
+        """``send(cob_id, data)``: put one frame on the bus (raises on a bus error).
+
+        ``plan``: the drive's plan (:meth:`DriverParams.plan`; made here if None): its PDO
+        layouts, units and gap scale.
+        """
         self.p = p
         self.send = send
-        self.units = p.units()
-        self.analog = p.analog()
-        n = p.node_id
-        self.cob_rpdo = mapping.RPDO1.cob_id(n)
-        self.cob_tpdo1 = mapping.TPDO1.cob_id(n)
-        self.cob_tpdo2 = mapping.TPDO2.cob_id(n)
+        self.plan = plan if plan is not None else p.plan()
+        self.units = self.plan.units
+        self.analog = self.plan.analog
+        n = self.plan.node_id
+        self.node_id = n
+        self.rpdos = [(pdo.cob_id(n), pdo.entries) for pdo in self.plan.rpdos]
+        self.cob_rpdo = self.rpdos[0][0]
+        tv = self.plan.roles['target_velocity']
+        self.target_lo, self.target_hi = ((-(1 << (tv.bits - 1)), (1 << (tv.bits - 1)) - 1)
+                                          if tv.signed else (0, (1 << tv.bits) - 1))
+        self.tpdos = dict(zip(self.plan.tpdo_cobs(), (*[p_.entries for p_ in self.plan.tpdos],
+                                                      *[p_.entries for p_ in
+                                                        self.plan.io_tpdos]), strict=True))
+        self.has_gap = 'gap' in self.plan.roles
         self.cob_emcy = emcy.EMCY_COB_BASE + n
         self._cv = threading.Condition()
-        self._tpdo1: bytes | None = None
-        self._tpdo2: bytes | None = None
+        self._rx: dict[int, bytes] = {}
         self._emcy: list[tuple[int, int, bytes]] = []
         self.statusword = 0
         self.position = 0
         self.velocity = 0
-        self.counts = p.analog_invalid_count
+        self.counts = self.analog.invalid
         self.state: State | None = None
         self.controlword = 0
         self.fault_reason = ''  # the master's latched fault ('' = none)
         self.emcy_reason = ''  # the last EMCY's text, latched until the reset
-        self.missing = 0  # cycles in a row without both TPDOs
+        self.missing = 0  # cycles in a row without every TPDO
         self.cycles = 0
         self.missed_total = 0
         self.late_total = 0  # cycles whose TPDOs came after the wait (taken by take_late)
@@ -280,12 +328,10 @@ class Master:
 
     # ---- frames in (another thread) ---------------------------------------------------
     def on_frame(self, can_id: int, data: bytes) -> None:
-        """Store a TPDO or an EMCY of our node (python-can's notifier thread)."""
+        """Store a TPDO or an EMCY of our nodes (python-can's notifier thread)."""
         with self._cv:
-            if can_id == self.cob_tpdo1:
-                self._tpdo1 = bytes(data)
-            elif can_id == self.cob_tpdo2:
-                self._tpdo2 = bytes(data)
+            if can_id in self.tpdos:
+                self._rx[can_id] = bytes(data)
             elif can_id == self.cob_emcy:
                 self._emcy.append(emcy.unpack_emcy(bytes(data)))
             else:
@@ -293,9 +339,15 @@ class Master:
             self._cv.notify_all()
 
     @property
-    def frame_ids(self) -> tuple[int, int, int]:
+    def frame_ids(self) -> tuple[int, ...]:
         """The COB-IDs :meth:`on_frame` wants."""
-        return self.cob_tpdo1, self.cob_tpdo2, self.cob_emcy
+        return (*self.tpdos, self.cob_emcy)
+
+    def send_rpdos(self, cw: int, target: int) -> None:
+        """Send every RPDO of the layout with ``cw`` and ``target`` (one frame each)."""
+        values = {'controlword': cw, 'target_velocity': target}
+        for cob, entries in self.rpdos:
+            self.send(cob, mapping.pack(entries, tuple(values[e.name] for e in entries)))
 
     # ---- the operator's reset ----------------------------------------------------------
     def request_reset(self) -> None:
@@ -328,6 +380,8 @@ class Master:
                 and cw == ds402.CW_ENABLE_OPERATION and cmd.admitted and cmd.enable
                 and math.isfinite(cmd.velocity_mm_s)):
             target = self.units.velocity_command(cmd.velocity_mm_s)
+            # the object's range (toward zero: a smaller magnitude, never a larger one)
+            target = max(self.target_lo, min(self.target_hi, target))
         return cw, target
 
     def cycle(self, cmd: Command, wait_s: float,
@@ -343,8 +397,8 @@ class Master:
         try:
             cw, target = self._rpdo(cmd)
             with self._cv:
-                self._tpdo1 = self._tpdo2 = None
-            self.send(self.cob_rpdo, mapping.pack(mapping.RPDO1.entries, (cw, target)))
+                self._rx = {}
+            self.send_rpdos(cw, target)
             self.controlword = cw
             self.send(mapping.SYNC_COB_ID, b'')
             self.cycles += 1
@@ -359,7 +413,7 @@ class Master:
                 self.missing += 1
                 self.missed_total += 1
                 if self.missing >= self.p.missing_tpdo_cycles and not self.fault_reason:
-                    self.fault_reason = (f'no TPDO from node {self.p.node_id} for '
+                    self.fault_reason = (f'no TPDO from node {self.node_id} for '
                                          f'{self.missing} cycles (SYNC {self.p.period_s * 1e3:g}'
                                          ' ms): bus or drive lost')
             return self._sample(fresh, cw, target)
@@ -415,25 +469,31 @@ class Master:
         if not self.fault_reason:
             self.fault_reason = ' '.join(reason.split())
         try:
-            self.send(self.cob_rpdo, mapping.pack(mapping.RPDO1.entries,
-                                                  (ds402.CW_QUICK_STOP, 0)))
+            self.send_rpdos(ds402.CW_QUICK_STOP, 0)
             self.controlword = ds402.CW_QUICK_STOP
         except Exception:  # noqa: BLE001, S110 -- the bus is gone: the drive's deadline stops it
             pass
 
     def _await(self, wait_s: float, abort: Callable[[], bool] | None = None) -> bool:
         end = time.monotonic() + wait_s
+        want = len(self.tpdos)
         with self._cv:
-            while self._tpdo1 is None or self._tpdo2 is None:
+            while len(self._rx) < want:
                 left = end - time.monotonic()
                 if left <= 0 or (abort is not None and abort()):
                     break
                 self._cv.wait(min(left, 0.05) if abort is not None else left)
-            t1, t2 = self._tpdo1, self._tpdo2
-        if t1 is None or t2 is None:
+            rx = dict(self._rx)
+        if len(rx) < want:
             return False
-        self.statusword, self.position = mapping.unpack(mapping.TPDO1.entries, t1)
-        self.velocity, self.counts = mapping.unpack(mapping.TPDO2.entries, t2)
+        values = {}
+        for cob, entries in self.tpdos.items():
+            values.update(zip((e.name for e in entries), mapping.unpack(entries, rx[cob]),
+                              strict=True))
+        self.statusword = values['statusword']
+        self.position = values['position_actual']
+        self.velocity = values['velocity_actual']
+        self.counts = values.get('gap', self.analog.invalid)
         self.state = ds402.state_of(self.statusword)  # UnknownStatus -> the exception path
         return True
 

@@ -87,16 +87,20 @@ def _toward_zero(x: float) -> int:
 
 @dataclass(frozen=True)
 class AnalogScale:
-    """The capacitive reading on an analog input (0x6401, INTEGER16): counts per mm.
+    """The capacitive reading on an analog input: ``counts = offset + mm * counts_per_mm``.
 
     Two counts are signals, not gaps: ``invalid`` (the amplifier's out-of-range output: no
     sheet under the nozzle, beyond the range, no sensor) and ``contact`` (its short-circuit
-    output: the nozzle touches the sheet). Every other count is a gap.
+    output: the nozzle touches the sheet). Every other count is a gap. ``lo`` .. ``hi``: the
+    input's integer range (its data type in the EDS).
     """
 
     counts_per_mm: float = 1000.0  # 0..20 mm -> 0..20000 counts
     invalid: int = 0x7FFF
     contact: int = -0x8000
+    offset: float = 0.0
+    lo: int = -0x8000
+    hi: int = 0x7FFF
 
     def counts(self, mm: float, valid: bool = True, contact: bool = False) -> int:
         """Return the count the input reports for ``mm`` (nearest; the signals as such)."""
@@ -104,8 +108,10 @@ class AnalogScale:
             return self.contact
         if not valid or not math.isfinite(mm):
             return self.invalid
-        c = round(mm * self.counts_per_mm)
-        return max(self.contact + 1, min(self.invalid - 1, c))
+        c = max(self.lo, min(self.hi, round(self.offset + mm * self.counts_per_mm)))
+        if c in (self.invalid, self.contact):  # a gap never reads as a signal
+            c += 1 if c < self.hi and c + 1 not in (self.invalid, self.contact) else -1
+        return c
 
     def mm(self, counts: int) -> tuple[float, bool]:
         """``(mm, valid)`` of a count (NaN, False for ``invalid``; 0, False for ``contact``)."""
@@ -113,7 +119,7 @@ class AnalogScale:
             return math.nan, False
         if counts == self.contact:
             return 0.0, False
-        return counts / self.counts_per_mm, True
+        return (counts - self.offset) / self.counts_per_mm, True
 
     def status(self, counts: int) -> int:
         """``CapacitiveHeight.status`` of a count: 0 ok, 1 out of range, 2 collision."""

@@ -13,6 +13,7 @@ import sys
 from typing import Callable
 
 from .bags.bag import BagError
+from .cli_cia402 import _add_cia402, _run_cia402
 from .cli_commissioning import (
     _add_calibrate,
     _add_conform,
@@ -94,6 +95,9 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
     'fleet-gen': ('generate a fleet of simulated machines over days (headless bags with '
                   'machine ids and dates; a few machines degrading; a parameter change)',
                   _add_fleet_gen, _run_fleet_gen),
+    'cia402': ("a CiA 402 drive's plan before power (plan DEVICE.yaml): SDO writes, PDO "
+               'layouts, watchdog, bus load; or the first refusal in one line',
+               _add_cia402, _run_cia402),
     'suite': ('run the scenario library for PID and LADRC variants; comparison table '
               "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
               _add_suite, _run_suite),

@@ -165,6 +165,9 @@ def _add_conform(p: argparse.ArgumentParser) -> None:
     p.add_argument('--period-ms', type=float, default=None,
                    help='with --drive: the SYNC period, and the rate the kit expects [1: the '
                    'test bus does not hold 0.5 ms free-running on 2 cores, docs/real-axis.md]')
+    p.add_argument('--device', metavar='YAML', default=None,
+                   help="with --drive cia402: the drive's device file (its EDS beside it; the "
+                   'emulated drive loads the same; default: the shipped drive, docs/cia402.md)')
     p.add_argument('--sim-scenario', metavar='YAML',
                    help='with --sim: this scenario instead of the built-in one (e.g. other '
                    'axis parameters; keep it free of follow commands)')
@@ -193,6 +196,10 @@ def _run_conform(a: argparse.Namespace) -> int:
         raise CliError(f'--watchdog-timeout-ms {a.watchdog_timeout_ms:g}: must be in (0, 1000]')
     if a.period_ms is not None and not a.drive:
         raise CliError('--period-ms needs --drive')
+    if a.device and not a.drive:
+        raise CliError('--device needs --drive cia402')
+    if a.device and not Path(a.device).is_file():
+        raise CliError(f'--device {a.device}: no such file')
     period_s = (a.period_ms if a.period_ms is not None else 1.0) * 1e-3
     if a.drive and not 0.25 <= period_s * 1e3 <= 10.0:
         raise CliError(f'--period-ms {a.period_ms:g}: must be in [0.25, 10]')
@@ -203,7 +210,8 @@ def _run_conform(a: argparse.Namespace) -> int:
     opts = ConformOptions(output=out, sim=a.sim, driver_cmd=a.driver_cmd, plan=plan,
                           tolerances=tolerances, period_s=period_s,
                           domain_id=a.domain_id, discovery_timeout_s=a.discovery_timeout_s,
-                          sim_scenario=a.sim_scenario, drive=a.drive or '')
+                          sim_scenario=a.sim_scenario, drive=a.drive or '',
+                          device=str(Path(a.device).resolve()) if a.device else '')
     try:
         result, out = run_conform(opts)
     except ConformError as exc:

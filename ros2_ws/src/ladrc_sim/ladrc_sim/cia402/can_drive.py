@@ -48,7 +48,7 @@ drive latches the last count it had).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 import logging
 import math
@@ -61,16 +61,12 @@ from typing import Any, Callable
 import canopen
 from canopen.sdo import SdoAbortedError
 from ladrc_cia402 import mapping
+from ladrc_cia402.device_file import DeviceFile, entry_range, load_device, make_plan
 from ladrc_cia402.ds402 import (
-    CONTROLWORD,
-    MODES_OF_OPERATION,
-    MODES_OF_OPERATION_DISPLAY,
     QUICK_STOP_OPTION_CODE,
-    STATUSWORD,
     State,
 )
 from ladrc_cia402.emcy import (
-    ERROR_CODE,
     ERROR_REGISTER,
     REG_COMMUNICATION,
 )
@@ -81,8 +77,9 @@ from .device import Cia402Device
 log = logging.getLogger('ladrc_sim.cia402')
 
 COMM_CYCLE = 0x1006
-POSITION_ACTUAL, VELOCITY_ACTUAL, TARGET_VELOCITY = 0x6064, 0x606C, 0x60FF
-ANALOG_INPUT = 0x6401
+HEARTBEAT_CONSUMER = 0x1016
+SUPPORTED_MODES = 0x6502
+EMCY_HEARTBEAT = 0x8130  # life guard / heartbeat error
 EMCY_RPDO_TIMEOUT = 0x8250
 EMCY_PDO_LENGTH = 0x8210
 EMCY_PROTOCOL = 0x8200
@@ -105,6 +102,11 @@ class StopDrive(Exception):
 def default_eds() -> Path:
     """Return the path of the shipped EDS of the emulated drive."""
     return Path(str(resources.files('ladrc_sim.cia402') / 'ladrc_z_drive.eds'))
+
+
+def default_device() -> Path:
+    """Return the path of the shipped device file of the emulated drive (its EDS beside it)."""
+    return Path(str(resources.files('ladrc_sim.cia402') / 'ladrc_z_drive.yaml'))
 
 
 def bus_kwargs(url: str) -> dict[str, str]:
@@ -150,36 +152,72 @@ class _Sync:
 class CanDrive:
     """One emulated CiA 402 drive on a canopen network; a controller of the headless runner."""
 
-    def __init__(self, network: canopen.Network, node_id: int, eds: Path | str | None = None,
-                 *, lockstep: bool = True, units: DriveUnits | None = None,
-                 analog: AnalogScale | None = None, lockstep_timeout_s: float = 10.0,
+    def __init__(self, network: canopen.Network, node_id: int | None = None,
+                 eds: Path | str | None = None, *, lockstep: bool = True,
+                 units: DriveUnits | None = None, analog: AnalogScale | None = None,
+                 lockstep_timeout_s: float = 10.0,
                  on_sample: Callable[[int, Any], None] | None = None,
-                 h_s: float | None = None) -> None:
-        """Load the dictionary from ``eds``; subscribe to SYNC.
+                 h_s: float | None = None, device: Path | str | DeviceFile | None = None
+                 ) -> None:
+        """Load the dictionary of the device file's EDS (``eds`` instead, if given); SYNC.
 
-        ``on_sample(k, tick)``: called as sample k's TPDOs go out (the sim node's truth);
-        ``h_s``: the world's period, the drive's 0x1006 (default: the EDS's).
+        ``device``: the device file (default: the shipped one): the objects by role, the
+        units, the gap's object and scale, and where the gap is on a CiA 401 I/O node, that
+        node too (emulated here, its TPDO on the same SYNC). ``node_id``: the device file's
+        unless given. ``on_sample(k, tick)``: called as sample k's TPDOs go out (the sim
+        node's truth); ``h_s``: the world's period, the drive's 0x1006 (default: the EDS's).
         """
         self.network = network
-        self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds or default_eds()),
-                                                                 node_id))
+        dev = device if isinstance(device, DeviceFile) else load_device(
+            device or default_device())
+        if node_id is not None:
+            dev = replace(dev, node_id=node_id)
+        if eds:
+            dev = replace(dev, dcf=str(Path(eds).resolve()))
+        self.plan = make_plan(dev, h_s or 0.0005)
+        self.roles = self.plan.roles
+        node_id = dev.node_id
+        self.node = canopen.LocalNode(node_id, canopen.import_od(self.plan.eds_path, node_id))
+        self.io = None
+        if self.plan.io_node_id:
+            self.io = canopen.LocalNode(self.plan.io_node_id, self.plan.io_od)
+            network.add_node(self.io)
         self.node_id = node_id
         self.lockstep = lockstep
-        self.units = units or DriveUnits()
-        self.analog = analog or AnalogScale()
+        self.units = units or self.plan.units
+        self.analog = analog or self.plan.analog
         self.lockstep_timeout_ns = int(lockstep_timeout_s * 1e9)
         self.on_sample = on_sample
-        if h_s is not None:
-            self._store(COMM_CYCLE, 0, int(round(h_s * 1e6)))
-        self.h_s = self._raw(COMM_CYCLE) * 1e-6
-        self.device = Cia402Device(_NoPlant(), self.units,
-                                   quick_stop_option=self._raw(QUICK_STOP_OPTION_CODE))
+        self._hb_time_s = 0.0  # heartbeat consumer time (0x1016:01; 0: not watched)
+        self._hb_cob = 0
+        self._hb_last = 0.0
+        self.heartbeats = 0
+        od = self.node.object_dictionary
+        if COMM_CYCLE in od:
+            if h_s is not None:
+                self._store(COMM_CYCLE, 0, int(round(h_s * 1e6)))
+            self.h_s = self._raw(COMM_CYCLE) * 1e-6
+        else:  # a drive without 0x1006: its period is the world's
+            self.h_s = h_s if h_s is not None else 0.0005
+        qso = self._raw(QUICK_STOP_OPTION_CODE) if QUICK_STOP_OPTION_CODE in od else 2
+        # the drive's own limit: 200 mm/s in its units (the axis model limits it too)
+        self.device = Cia402Device(_NoPlant(), self.units, quick_stop_option=qso,
+                                   max_velocity_units=max(1, int(
+                                       200.0 * self.units.velocity_units_per_mm_s)))
+        self.supported_modes = 0
+        if SUPPORTED_MODES in od:
+            dflt = od[SUPPORTED_MODES].default
+            # an EDS without a value: the drive's own answer (CSV and profile velocity)
+            self.supported_modes = dflt if isinstance(dflt, int) and dflt else 0x104
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         network.add_node(self.node)
         self._maps_dirty = True
         self._rpdos: list[tuple[int, tuple[mapping.Entry, ...]]] = []
         self._tpdos: list[tuple[int, int, tuple[mapping.Entry, ...]]] = []
+        self._io_tpdos: list[tuple[int, int, tuple[mapping.Entry, ...]]] = []
+        if self.io is not None:
+            self.io.add_write_callback(self._on_io_write)
         # notifier thread -> runner thread
         self._cv = threading.Condition()
         self._pending: list[tuple[int, bytes]] = []  # RPDOs since the last SYNC
@@ -206,10 +244,7 @@ class CanDrive:
 
     # ---- the dictionary -----------------------------------------------------------------
     def _raw(self, index: int, sub: int = 0) -> int:
-        obj = self.node.object_dictionary[index]
-        if not isinstance(obj, canopen.objectdictionary.ODVariable):
-            obj = obj[sub]
-        return obj.decode_raw(self.node.get_data(index, sub))
+        return _raw(self.node, index, sub)
 
     def _store(self, index: int, sub: int, value: int) -> None:
         obj = self.node.object_dictionary[index]
@@ -217,19 +252,26 @@ class CanDrive:
             obj = obj[sub]
         self.node.data_store.setdefault(index, {})[sub] = obj.encode_raw(value)
 
+    def _role(self, role: str) -> tuple[int, int]:
+        e = self.roles[role]
+        return e.index, e.subindex
+
     def _on_read(self, index: int, subindex: int, od: Any) -> int | None:
         d = self.device
-        if index == STATUSWORD:
+        key = (index, subindex)
+        if key == self._role('statusword'):
             return d.statusword
-        if index == MODES_OF_OPERATION_DISPLAY:
+        if key == self._role('modes_of_operation_display'):
             return d.mode_display
-        if index == ERROR_CODE:
+        if key == self._role('error_code'):
             return d.error_code
+        if index == SUPPORTED_MODES:
+            return self.supported_modes
         return None
 
     def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         value = od.decode_raw(data)
-        if index == MODES_OF_OPERATION:
+        if (index, subindex) == self._role('modes_of_operation'):
             try:
                 self.device.set_mode(value)
             except ValueError:
@@ -240,43 +282,82 @@ class CanDrive:
             # the world runs at its runner's period: the drive takes its own value, no other
             if value <= 0 or abs(value * 1e-6 - self.h_s) > 1e-9:
                 raise SdoAbortedError(SDO_VALUE_RANGE)
+        elif index == HEARTBEAT_CONSUMER and subindex == 1:
+            self._watch_heartbeat(value)
         elif 0x1400 <= index <= 0x1BFF:
             self._maps_dirty = True
 
+    def _on_io_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
+        if 0x1800 <= index <= 0x1BFF:
+            self._maps_dirty = True
+
+    # ---- the heartbeat consumer (0x1016:01: producer node << 16 | time ms) -------------
+    def _watch_heartbeat(self, value: int) -> None:
+        if self._hb_cob:
+            self.network.unsubscribe(self._hb_cob, self._on_heartbeat)
+        producer, ms = (value >> 16) & 0x7F, value & 0xFFFF
+        self._hb_time_s = ms * 1e-3 if producer and ms else 0.0
+        self._hb_cob = 0x700 + producer if self._hb_time_s else 0
+        self._hb_last = 0.0  # armed by the first heartbeat
+        if self._hb_cob:
+            self.network.subscribe(self._hb_cob, self._on_heartbeat)
+
+    def _on_heartbeat(self, can_id: int, data: bytes, timestamp: float) -> None:
+        self._hb_last = time.monotonic()
+        self.heartbeats += 1
+
+    def heartbeat_lost(self) -> bool:
+        """Whether the watched producer's heartbeat is older than the consumer time."""
+        return bool(self._hb_time_s and self._hb_last
+                    and time.monotonic() - self._hb_last > self._hb_time_s)
+
     # ---- PDOs -----------------------------------------------------------------------------
-    def _read_maps(self) -> None:
-        """Build the RPDO / TPDO tables from the dictionary (as the master configured it)."""
-        for cob, _entries in self._rpdos:
-            self.network.unsubscribe(cob, self._on_rpdo)
-        rpdos, tpdos = [], []
-        od = self.node.object_dictionary
+    def _maps_of(self, node: canopen.LocalNode, rpdos: list, tpdos: list, drive: bool) -> None:
+        od = node.object_dictionary
         for comm, mp, out in ((mapping.RPDO_COMM, mapping.RPDO_MAP, rpdos),
                               (mapping.TPDO_COMM, mapping.TPDO_MAP, tpdos)):
             for k in range(4):
-                if comm + k not in od:
+                if comm + k not in od or mp + k not in od:
                     continue
-                cob = self._raw(comm + k, 1)
+                cob = _raw(node, comm + k, 1)
                 if cob & mapping.COB_ID_INVALID:
                     continue
                 entries = []
-                for s in range(1, self._raw(mp + k, 0) + 1):
-                    index, sub, bits = mapping.decode_entry(self._raw(mp + k, s))
-                    obj = od[index] if sub == 0 and index in od else od[index][sub]
+                for s in range(1, _raw(node, mp + k, 0) + 1):
+                    index, sub, bits = mapping.decode_entry(_raw(node, mp + k, s))
+                    obj = od[index]
+                    if not isinstance(obj, canopen.objectdictionary.ODVariable):
+                        obj = obj[sub]
                     signed = obj.data_type in (canopen.objectdictionary.INTEGER8,
                                                canopen.objectdictionary.INTEGER16,
                                                canopen.objectdictionary.INTEGER32)
-                    entries.append(mapping.Entry(index, sub, bits, signed, obj.name))
+                    role = next((r for r, e in self.roles.items()
+                                 if (e.index, e.subindex) == (index, sub)), obj.name)
+                    if role == 'velocity_actual':
+                        signed = self.roles[role].signed  # the device file's reading of it
+                    entries.append(mapping.Entry(index, sub, bits, signed, role))
                 if comm == mapping.RPDO_COMM:
                     out.append((cob & 0x7FF, tuple(entries)))
-                    if k == 0:
-                        ms = self._raw(comm, 5)
+                    if k == 0 and drive:
+                        ms = _raw(node, comm, 5) if 5 in od[comm] else 0
                         self._deadline_periods = (
                             max(1, math.ceil(ms * 1e-3 / self.h_s - 1e-9)) if ms else 0)
                 else:
-                    tt = self._raw(comm + k, 2)
+                    tt = _raw(node, comm + k, 2)
                     if 1 <= tt <= 240:
                         out.append((cob & 0x7FF, tt, tuple(entries)))
-        self._rpdos, self._tpdos = rpdos, tpdos
+
+    def _read_maps(self) -> None:
+        """Build the RPDO / TPDO tables from the dictionaries (as the master configured them)."""
+        for cob, _entries in self._rpdos:
+            self.network.unsubscribe(cob, self._on_rpdo)
+        rpdos: list = []
+        tpdos: list = []
+        self._maps_of(self.node, rpdos, tpdos, True)
+        io_tpdos: list = []
+        if self.io is not None:
+            self._maps_of(self.io, [], io_tpdos, False)
+        self._rpdos, self._tpdos, self._io_tpdos = rpdos, tpdos, io_tpdos
         for cob, _entries in self._rpdos:
             self.network.subscribe(cob, self._on_rpdo)
         self._maps_dirty = False
@@ -295,7 +376,7 @@ class CanDrive:
             self.syncs_received += 1
             tx = self._tx
             self._cv.notify_all()
-        if not self.lockstep and tx and self.node.nmt.state == 'OPERATIONAL':
+        if not self.lockstep and tx:
             # free-running: the SYNC is answered at once with the latest period's sample
             for cob, _tt, data_out in tx:
                 self._send(cob, data_out)
@@ -336,10 +417,9 @@ class CanDrive:
         if self.seq == 0:
             self._period(tick, [self._wait_sync()])  # SYNC 0: the first controlword
         values = self._sample_values(tick)
-        if self.node.nmt.state == 'OPERATIONAL':
-            for cob, tt, entries in self._tpdo_table():
-                if (self.seq + 1) % tt == 0:
-                    self._send(cob, mapping.pack(entries, self._pick(entries, values)))
+        for cob, tt, entries in self._tpdo_table():
+            if (self.seq + 1) % tt == 0:
+                self._send(cob, mapping.pack(entries, self._pick(entries, values)))
         if self.on_sample is not None:
             self.on_sample(self.seq, tick)
         self.seq += 1
@@ -357,12 +437,11 @@ class CanDrive:
         if not self.running:
             raise StopDrive()
         values = self._sample_values(tick)
-        if self.node.nmt.state == 'OPERATIONAL':
-            table = self._tpdo_table()
-            tx = [(cob, tt, mapping.pack(entries, self._pick(entries, values)))
-                  for cob, tt, entries in table]
-            with self._cv:
-                self._tx = tx
+        table = self._tpdo_table()
+        tx = [(cob, tt, mapping.pack(entries, self._pick(entries, values)))
+              for cob, tt, entries in table]
+        with self._cv:
+            self._tx = tx
         if self.on_sample is not None:
             self.on_sample(self.seq, tick)
         self.seq += 1
@@ -390,7 +469,10 @@ class CanDrive:
     def _tpdo_table(self) -> list[tuple[int, int, tuple[mapping.Entry, ...]]]:
         if self._maps_dirty:
             self._read_maps()
-        return self._tpdos
+        table = list(self._tpdos) if self.node.nmt.state == 'OPERATIONAL' else []
+        if self.io is not None and self.io.nmt.state == 'OPERATIONAL':
+            table += self._io_tpdos  # the I/O node samples its input on the same SYNC
+        return table
 
     def _wait_sync(self) -> _Sync:
         # the first SYNC comes once the driver has configured the drive and found its
@@ -426,17 +508,24 @@ class CanDrive:
         counts = self.analog.counts(float(tick.gap_mm), bool(tick.gap_valid) and fresh_gap,
                                     contact=fresh_gap and tick.gap_status == 2)
         d = self.device
-        return {(STATUSWORD, 0): d.statusword,
-                (POSITION_ACTUAL, 0): (self.units.position_increments(enc)
-                                       if not math.isnan(enc) else 0),
-                (VELOCITY_ACTUAL, 0): self.units.velocity_units(velocity),
-                (ANALOG_INPUT, 1): counts,
-                (MODES_OF_OPERATION_DISPLAY, 0): d.mode_display,
-                (ERROR_CODE, 0): d.error_code}
+        values = {'statusword': d.statusword,
+                  'position_actual': (self.units.position_increments(enc)
+                                      if not math.isnan(enc) else 0),
+                  'velocity_actual': self.units.velocity_units(velocity),
+                  'modes_of_operation_display': d.mode_display,
+                  'error_code': d.error_code}
+        if 'gap' in self.roles:
+            values['gap'] = counts
+        return {self._role(r): v for r, v in values.items()}
 
     def _pick(self, entries: tuple[mapping.Entry, ...], values: dict) -> tuple[int, ...]:
-        return tuple(values[(e.index, e.subindex)] if (e.index, e.subindex) in values
-                     else self._raw(e.index, e.subindex) for e in entries)
+        out = []
+        for e in entries:
+            v = (values[(e.index, e.subindex)] if (e.index, e.subindex) in values
+                 else self._raw(e.index, e.subindex))
+            lo, hi = entry_range(e)
+            out.append(max(lo, min(hi, v)))  # the object's data type (a 16-bit unit saturates)
+        return tuple(out)
 
     def _period(self, tick: Any, syncs: list[_Sync]) -> float:
         """Apply the RPDOs of the SYNCs since the last period; return the period's velocity.
@@ -473,13 +562,18 @@ class CanDrive:
                         and self._periods_without_rpdo >= self._deadline_periods):
                     self._timed_out = True
                     d.fault(EMCY_RPDO_TIMEOUT, REG_COMMUNICATION)
+        if not self.lockstep and self.heartbeat_lost() and not self._hb_timed_out:
+            self._hb_timed_out = True  # the master's heartbeat is gone: fault reaction
+            d.fault(EMCY_HEARTBEAT, REG_COMMUNICATION)
+        elif self._hb_timed_out and not self.heartbeat_lost():
+            self._hb_timed_out = False
         if tick.drive_fault and not self._scenario_fault:
             d.fault(self._event_code)  # the scenario's drive fault
         self._scenario_fault = bool(tick.drive_fault)
-        cw = self._raw(CONTROLWORD)
+        cw = self._raw(*self._role('controlword'))
         if not tick.drive_enabled and d.state is State.SWITCH_ON_DISABLED:
             cw = 0  # the enable input is off: no shutdown command takes effect
-        cmd = d.command(cw, self._raw(TARGET_VELOCITY))
+        cmd = d.command(cw, self._raw(*self._role('target_velocity')))
         d.settle(self._velocity_mm_s == 0.0)
         for e in d.events:
             if not self.bus_lost:
@@ -487,7 +581,7 @@ class CanDrive:
                     self.node.emcy.send(e.code, e.register, e.manufacturer)
                 except Exception as exc:  # noqa: BLE001 -- the bus is gone: keep running
                     self._lost(exc)
-            self._store(ERROR_CODE, 0, d.error_code)
+            self._store(*self._role('error_code'), d.error_code)
             self._store(ERROR_REGISTER, 0, e.register if e.code else 0)
         d.events.clear()
         self._braking = cmd is None
@@ -495,8 +589,16 @@ class CanDrive:
         return self.command_mm_s
 
     _velocity_mm_s = 0.0
+    _hb_timed_out = False
     _event_code = EMCY_HARDWARE
     _syncs_seen = False
+
+
+def _raw(node: canopen.LocalNode, index: int, sub: int = 0) -> int:
+    obj = node.object_dictionary[index]
+    if not isinstance(obj, canopen.objectdictionary.ODVariable):
+        obj = obj[sub]
+    return obj.decode_raw(node.get_data(index, sub))
 
 
 class _NoPlant:

@@ -1,6 +1,6 @@
 """The emulated CiA 402 Z drive as a process of its own, without ROS.
 
-    python -m ladrc_sim.cia402.emulator --bus ws://127.0.0.1:PORT/ --node-id 5 [--eds PATH]
+    python -m ladrc_sim.cia402.emulator --bus ws://127.0.0.1:PORT/ [--device FILE] [--eds PATH]
         [--scenario NAME] [--free-running]
 
 The scenario's world (axis, sheet, sensor; :func:`ladrc_sim.headless.runner.run`) behind a
@@ -21,9 +21,11 @@ from pathlib import Path
 import signal
 import sys
 
+from ladrc_cia402.device_file import PlanError
+
 from ..headless.runner import run
 from ..headless.scenario import ScenarioError, load_scenario
-from .can_drive import CanDrive, LockstepAbort, StopDrive, connect, default_eds
+from .can_drive import CanDrive, LockstepAbort, StopDrive, connect
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,15 +34,17 @@ def main(argv: list[str] | None = None) -> int:
                                 description='Emulated CiA 402 Z drive on a CAN bus.')
     p.add_argument('--bus', required=True, help='ws://127.0.0.1:PORT/ (python-can-remote) '
                    'or a socketcan channel (can0)')
-    p.add_argument('--node-id', type=int, default=5)
-    p.add_argument('--eds', type=Path, default=None, help='default: the shipped EDS')
+    p.add_argument('--node-id', type=int, default=None, help="default: the device file's")
+    p.add_argument('--eds', type=Path, default=None, help="default: the device file's")
+    p.add_argument('--device', type=Path, default=None,
+                   help="the drive's device file (default: the shipped one)")
     p.add_argument('--scenario', default='step', help='the world: a scenario of the library')
     p.add_argument('--free-running', action='store_true',
                    help="the drive's own clock instead of lock step")
     p.add_argument('--lockstep-timeout', type=float, default=30.0,
                    help='lock step: wall-clock wait for a SYNC before giving up [30 s]')
     a = p.parse_args(argv)
-    if not 1 <= a.node_id <= 127:
+    if a.node_id is not None and not 1 <= a.node_id <= 127:
         p.error(f'--node-id {a.node_id}: 1..127')
     logging.basicConfig(level=logging.WARNING, format='emulator: %(levelname)s %(message)s')
     try:
@@ -51,15 +55,19 @@ def main(argv: list[str] | None = None) -> int:
     network = connect(a.bus)
     drive = None
     try:
-        drive = CanDrive(network, a.node_id, a.eds or default_eds(),
-                         lockstep=not a.free_running, lockstep_timeout_s=a.lockstep_timeout)
+        try:
+            drive = CanDrive(network, a.node_id, a.eds, device=a.device,
+                             lockstep=not a.free_running, lockstep_timeout_s=a.lockstep_timeout)
+        except PlanError as exc:
+            print(f'emulator: {exc}', file=sys.stderr)
+            return 2
         def _stop(*_):
             drive.running = False
 
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, _stop)
         drive.boot()
-        print(f'emulator: node {a.node_id} on {a.bus}, h_s {drive.h_s:g} s, scenario '
+        print(f'emulator: node {drive.node_id} on {a.bus}, h_s {drive.h_s:g} s, scenario '
               f'{scenario.name}', flush=True)
         try:
             run(scenario, drive, h_s=drive.h_s)

@@ -61,7 +61,8 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
                loop: str = 'deadline', storage: str = 'mcap', lockstep: bool = False,
                paced: bool = True, job: str | None = None,
                separate_cnc: bool = False, drive: str = '', bus: str = '',
-               node_id: int = 5, period_s: float = 0.0005) -> list[NodeSpec]:
+               node_id: int = 5, period_s: float = 0.0005, device: str = ''
+               ) -> list[NodeSpec]:
     """Return the nodes of a simulated run: the one configuration bringup and launch share.
 
     ``lockstep``: the sim node and the follow node in lock step (docs/follow-node.md), the
@@ -101,11 +102,11 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
     if job and separate_cnc:
         sim['separate_cnc'] = True
     if drive == 'cia402':
-        eds = emulated_drive_eds()
-        sim.update({'drive': 'cia402', 'can_bus': bus, 'can_node_id': node_id, 'can_eds': eds,
-                    'h_s': period_s})
-        driver: dict[str, object] = {'eds': eds, 'bus_interface': bus_interface(bus),
-                                     'bus_channel': bus, 'node_id': node_id,
+        # the drive's device file (``device``; default the shipped drive's): both load it
+        device = device or emulated_drive_device()
+        sim.update({'drive': 'cia402', 'can_bus': bus, 'can_device': device, 'h_s': period_s})
+        driver: dict[str, object] = {'device': device, 'bus_interface': bus_interface(bus),
+                                     'bus_channel': bus,
                                      'lockstep': bool(lockstep), 'period_s': period_s}
         specs.append(NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver',
                               parameters=driver))
@@ -121,6 +122,13 @@ def emulated_drive_eds() -> str:
     from ladrc_sim.cia402.can_drive import default_eds
 
     return str(default_eds())
+
+
+def emulated_drive_device() -> str:
+    """Return the device file of the emulated CiA 402 drive (ladrc_sim), its EDS beside it."""
+    from ladrc_sim.cia402.can_drive import default_device
+
+    return str(default_device())
 
 
 def bus_interface(bus: str) -> str:
@@ -406,6 +414,9 @@ def main(argv: list[str] | None = None) -> int:
                     help='with --drive cia402: a running bus (ws://127.0.0.1:PORT/ of a '
                     'python-can-remote server, or a socketcan channel such as can0); default: '
                     'a bus started here on 127.0.0.1 and stopped at the end')
+    ap.add_argument('--device', default='',
+                    help="with --drive cia402: the drive's device file (the emulated drive "
+                    'loads the same) [the shipped drive]')
     ap.add_argument('--period-ms', type=float, default=None,
                     help="with --drive cia402: the SYNC period = the controller's h_s [0.5 in "
                     'lock step; 1 free-running: the test bus does not hold 0.5 ms free-running '
@@ -450,8 +461,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.separate_cnc and not args.job:
         print('bringup: --separate-cnc needs --job (a scenario has no CNC)', file=sys.stderr)
         return 2
-    if (args.bus or args.period_ms is not None) and args.drive != 'cia402':
-        print('bringup: --bus and --period-ms need --drive cia402', file=sys.stderr)
+    if (args.bus or args.period_ms is not None or args.device) and args.drive != 'cia402':
+        print('bringup: --bus, --period-ms and --device need --drive cia402', file=sys.stderr)
         return 2
     period_ms = args.period_ms if args.period_ms is not None else (
         0.5 if args.lockstep or args.job else 1.0)
@@ -492,7 +503,8 @@ def main(argv: list[str] | None = None) -> int:
     specs = node_specs(args.scenario, params, args.bag, args.loop, args.storage,
                        lockstep=args.lockstep, paced=not args.unpaced, job=args.job,
                        separate_cnc=args.separate_cnc, drive=args.drive, bus=bus,
-                       period_s=period_ms * 1e-3)
+                       period_s=period_ms * 1e-3,
+                       device=str(Path(args.device).resolve()) if args.device else '')
     figures_file = scratch / 'figures.json' if scratch is not None else None
     if figures_file is not None:  # the sim node writes the job's figures there
         next(s for s in specs if s.name == 'ladrc_sim').parameters['figures_file'] = str(

@@ -20,20 +20,23 @@ import signal
 import sys
 import time
 
-from .bringup import Bringup, NodeSpec, bus_interface, emulated_drive_eds
+from .bringup import Bringup, NodeSpec, bus_interface, emulated_drive_device
 
 
 def stack_specs(scenario: str, bus: str, watchdog_timeout_s: float, lockstep: bool = False,
                 node_id: int = 5, exit_at_end: bool = True, period_s: float = 0.0005,
-                raw_only: bool = False) -> list[NodeSpec]:
-    """Return the emulated drive (the sim node on the bus) and the CiA 402 driver node."""
-    eds = emulated_drive_eds()
+                raw_only: bool = False, device: str = '') -> list[NodeSpec]:
+    """Return the emulated drive (the sim node on the bus) and the CiA 402 driver node.
+
+    ``device``: the drive's device file, which both load (default: the shipped drive's).
+    """
+    device = device or emulated_drive_device()
     sim = NodeSpec('ladrc_sim', 'sim_node', 'ladrc_sim', parameters={
         'scenario': scenario, 'exit_at_end': exit_at_end, 'drive': 'cia402', 'can_bus': bus,
-        'can_node_id': node_id, 'can_eds': eds, 'lockstep': lockstep, 'h_s': period_s})
+        'can_device': device, 'lockstep': lockstep, 'h_s': period_s})
     driver = NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver', parameters={
-        'eds': eds, 'bus_interface': bus_interface(bus), 'bus_channel': bus,
-        'node_id': node_id, 'watchdog_timeout_s': watchdog_timeout_s, 'lockstep': lockstep,
+        'device': device, 'bus_interface': bus_interface(bus), 'bus_channel': bus,
+        'watchdog_timeout_s': watchdog_timeout_s, 'lockstep': lockstep,
         'period_s': period_s, 'raw_only': raw_only,
         # the drive's own deadline is behind the driver's watchdog (a dead driver, not a
         # silent controller): at least twice it
@@ -53,6 +56,8 @@ def main(argv: list[str] | None = None) -> int:
                     help='the driver publishes the analog count as raw_hz and no gap_mm')
     ap.add_argument('--period-s', type=float, default=0.0005,
                     help="the SYNC period = the drive world's h_s [0.0005]")
+    ap.add_argument('--device', default='', help="the drive's device file (both load it) "
+                    '[the shipped drive]')
     ap.add_argument('--logs', default=None, help="folder for the processes' output")
     a = ap.parse_args(argv)
     stop = [False]
@@ -76,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     bus = a.bus or server.url
     up = Bringup(stack_specs(a.scenario, bus, a.watchdog_timeout_s, a.lockstep,
-                             period_s=a.period_s, raw_only=a.raw_only),
+                             period_s=a.period_s, raw_only=a.raw_only,
+                             device=str(Path(a.device).resolve()) if a.device else ''),
                  dict(os.environ), logs)
     print(f'cia402_stack: bus {bus}', file=sys.stderr, flush=True)
     code = 0

@@ -53,6 +53,7 @@ class ConformOptions:
     sim_scenario: str | None = None  # with sim: this scenario file instead of the built-in one
     drive: str = ''  # 'cia402': the emulated CiA 402 drive and its driver node (cia402_stack)
     period_s: float = 0.0005  # with drive: the SYNC period (the tolerances are scaled to it)
+    device: str = ''  # with drive: the drive's device file ('' = the shipped drive)
 
 
 def _tail(path: Path) -> str:
@@ -94,6 +95,8 @@ def _start_driver(opts: ConformOptions, folder: Path, env: dict[str, str]
             cmd = [exe, '--scenario', str(scenario), '--logs', str(folder / 'cia402'),
                    '--watchdog-timeout-s', repr(opts.tolerances.watchdog_timeout_s),
                    '--period-s', repr(opts.period_s)]
+            if opts.device:
+                cmd += ['--device', opts.device]
             label = ('the CiA 402 driver node (ladrc_cia402 driver_node) and the emulated '
                      'CiA 402 drive (ladrc_sim sim_node drive:=cia402, flat sheet) on the '
                      'test bus')
