@@ -22,7 +22,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 import signal
-import socket
 import subprocess
 import time
 
@@ -34,7 +33,7 @@ from ladrc_linuxcnc.machine import (
     render_run_config,
     run_processes,
 )
-from linuxcnc_runs import DATA
+from linuxcnc_runs import DATA, Client
 import pytest
 from system import require
 
@@ -57,48 +56,6 @@ G1 X200 F3000
 M5 $0
 M2
 """
-
-
-class Client:
-    """The bridge node's side of the socket, driven by the test."""
-
-    def __init__(self, path: str) -> None:
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self.sock.connect(path)
-        self.sock.setblocking(False)
-        self.reader = p.FrameReader()
-        self.samples: list[tuple[float, p.LcncSample]] = []
-        self.hello: dict = {}
-        self.flags = p.O_HEIGHT_READY
-        self.seq = 0
-        self.silent = False
-
-    def run_until(self, condition, timeout_s: float, what: str) -> None:
-        """Exchange frames until ``condition(last sample)``; fail after ``timeout_s``."""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            try:
-                data = self.sock.recv(1 << 16)
-                assert data, 'the component closed the socket'
-                self.reader.feed(data)
-            except BlockingIOError:
-                pass
-            for kind, value in self.reader.frames():
-                if kind == p.SAMPLE:
-                    self.samples.append((time.monotonic(), value))
-                elif kind == p.HELLO:
-                    self.hello = value
-            if not self.silent:
-                self.seq += 1
-                self.sock.sendall(p.HalOutputs(self.seq, 1.0, self.flags, 0).pack())
-            if self.samples and condition(self.samples[-1][1]):
-                return
-            time.sleep(0.001)
-        last = self.samples[-1][1].as_dict() if self.samples else None
-        pytest.fail(f'{what}: not within {timeout_s:g} s; last sample {last}')
-
-    def since(self, t: float) -> list[p.LcncSample]:
-        return [s for ts, s in self.samples if ts >= t]
 
 
 @pytest.fixture()

@@ -104,7 +104,9 @@ def test_the_z_filter_makes_a_program_with_z_readable(tmp_path):
     filtered.write_text(r.stdout, encoding='utf-8')
     read = read_program(filtered)
     assert read['result'] <= read['min_error'], read['error']
-    assert [m[2:4] for m in read['moves']] == [[5.0, 5.0], [20.0, 5.0]]
+    # the Z-only line keeps its G0: a rapid of no length in XY (the head's Z is not LinuxCNC's)
+    assert [m[:4] for m in read['moves']] == [['G0', 2, 0.0, 0.0], ['G0', 3, 5.0, 5.0],
+                                             ['G1', 5, 20.0, 5.0]]
 
 
 def test_a_gcode_job_is_linuxcncs_to_read(tmp_path, capsys):

@@ -1,4 +1,6 @@
-"""Helpers of the LinuxCNC tests (tests/linuxcnc): a small job, a bring-up run, its verdict.
+"""Helpers of the LinuxCNC tests (tests/linuxcnc): a job, a bring-up run, its verdict, a client.
+
+:class:`Client` is the bridge node's side of the HAL component's socket, driven by a test.
 
 ``bringup --cnc linuxcnc`` runs free (LinuxCNC keeps its own clock): on a loaded 2-core
 machine a stall of a loop process can still pass a timing guard of the simulation (the sim
@@ -14,8 +16,13 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+import socket
 import subprocess
 import sys
+import time
+
+from ladrc_linuxcnc import protocol as p
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / 'tests' / 'data' / 'linuxcnc'
@@ -105,3 +112,45 @@ def summary(figures: dict) -> str:
 def report(line: str) -> None:
     """Print a line the test log keeps (pytest -rA / the captured output)."""
     print(line, file=sys.stderr, flush=True)
+
+
+class Client:
+    """The bridge node's side of the socket, driven by the test."""
+
+    def __init__(self, path: str) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(path)
+        self.sock.setblocking(False)
+        self.reader = p.FrameReader()
+        self.samples: list[tuple[float, p.LcncSample]] = []
+        self.hello: dict = {}
+        self.flags = p.O_HEIGHT_READY
+        self.seq = 0
+        self.silent = False
+
+    def run_until(self, condition, timeout_s: float, what: str) -> None:
+        """Exchange frames until ``condition(last sample)``; fail after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            try:
+                data = self.sock.recv(1 << 16)
+                assert data, 'the component closed the socket'
+                self.reader.feed(data)
+            except BlockingIOError:
+                pass
+            for kind, value in self.reader.frames():
+                if kind == p.SAMPLE:
+                    self.samples.append((time.monotonic(), value))
+                elif kind == p.HELLO:
+                    self.hello = value
+            if not self.silent:
+                self.seq += 1
+                self.sock.sendall(p.HalOutputs(self.seq, 1.0, self.flags, 0).pack())
+            if self.samples and condition(self.samples[-1][1]):
+                return
+            time.sleep(0.001)
+        last = self.samples[-1][1].as_dict() if self.samples else None
+        pytest.fail(f'{what}: not within {timeout_s:g} s; last sample {last}')
+
+    def since(self, t: float) -> list[p.LcncSample]:
+        return [s for ts, s in self.samples if ts >= t]

@@ -1,4 +1,5 @@
 from glob import glob
+import os
 
 from setuptools import find_packages, setup
 
@@ -11,7 +12,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*')),
+        ('share/' + package_name + '/config', [f for f in glob('config/*') if os.path.isfile(f)]),
+        ('share/' + package_name + '/config/subroutines', glob('config/subroutines/*.ngc')),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

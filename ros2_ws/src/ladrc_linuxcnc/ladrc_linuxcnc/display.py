@@ -7,12 +7,22 @@ window. It plays the operator of an unattended run, with LinuxCNC's ``linuxcnc``
 1. estop reset, machine on, home all joints (immediate homing to the job's start point);
 2. the program's ``[FILTER]`` (the INI's, by extension, as AXIS runs it; here the Z filter,
    ``z_filter.py``): its output is the program LinuxCNC reads, its log goes to the status file;
-3. auto mode, open the program (LinuxCNC's own interpreter reads it: errors are LinuxCNC's);
+3. LinuxCNC's interpreter reads the program to its end (below); auto mode, open it;
 4. wait for the height controller: the bridge's ``ladrc.height-ready`` pin (cycle start's
    permissive), at most ``[LADRC]READY_TIMEOUT_S``; then cycle start;
-5. watch: pauses (the bridge pauses the program on a FAULT), estop, machine off, errors on
+5. watch: pauses (the bridge pauses the program on a FAULT), estop, machine off, messages on
    LinuxCNC's error channel, the program's end; then exit ``[LADRC]LINGER_S`` after the end
    when ``[LADRC]EXIT_AT_END`` is 1, else stay until stopped (SIGTERM).
+
+**A program error.** Before the open, LinuxCNC's interpreter reads the filtered program to its
+end (:func:`check_program`, as AXIS's preview): an error (an undefined subroutine, an arc
+without a centre, ``o<touchoff>`` refusing a value) refuses the program before anything runs.
+While it runs, an error on LinuxCNC's error channel (the interpreter's, task's, motion's: a
+move past the machine's limits) sets ``ladrc.program-error`` (the bridge ends the job,
+aborted) and aborts the program (LinuxCNC would otherwise run out the moves it had queued).
+Either ends in an ``error`` line with LinuxCNC's text, the program's ``line`` (the filtered
+program has the file's lines) and ``when`` (``open``, ``run``), and exit 1. A program that
+never runs (idle :data:`START_GRACE_S` after cycle start) ends too: it cannot hang the run.
 
 Every step is a JSON line in ``[LADRC]STATUS_FILE`` (``{"t": wall time, "event": ..., ...}``):
 the bring-up waits for ``ready`` before it starts the ROS nodes and reads the rest into the
@@ -24,6 +34,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+import re
 import shlex
 import signal
 import subprocess
@@ -31,6 +42,25 @@ import sys
 import time
 
 RUNNING = [True]
+START_GRACE_S = 1.0
+"""After cycle start, an interpreter idle this long without having run: the program's end."""
+
+
+NAMED_LINE = re.compile(r'\b(?:from line:|on line) (\d+)')
+"""The program line LinuxCNC's own text names: an o-word search (an undefined subroutine) ends
+at the file's end and names the call's line (``from line: N``); motion names the move that
+would leave the machine's limits (``Linear move on line N would exceed ...``)."""
+
+
+class ProgramError(RuntimeError):
+    """LinuxCNC refused or stopped the program: its text, the program's line, when (open, run)."""
+
+    def __init__(self, text: str, line: int, when: str) -> None:
+        m = NAMED_LINE.search(text)
+        self.line = int(m.group(1)) if m else int(line)
+        self.text = ' '.join(text.split())[:600]
+        self.when = when
+        super().__init__(self.text + (f' (line {self.line})' if self.line > 0 else ''))
 
 
 class Status:
@@ -79,14 +109,50 @@ def run_filter(ini, program: Path, out_dir: Path, status: Status) -> Path:
     return out
 
 
-def error_messages(channel) -> list[str]:
-    """Return the messages waiting on LinuxCNC's error channel."""
+def check_program(path: Path, program: Path, initcode: str, status: Status) -> None:
+    """Read the program with LinuxCNC's interpreter to its end before it runs, as AXIS's preview.
+
+    ``gcode_path.py`` (the ``gcode`` module, this LinuxCNC's INI: its subroutines) in a process
+    of its own. Raises :class:`ProgramError` with the interpreter's error and line, so that a
+    program LinuxCNC cannot read to its end (an undefined subroutine, an arc without centre,
+    ``o<touchoff>``'s refusal of a value) is refused before anything is cut. A reader that
+    cannot run is noted (``check``); LinuxCNC's own run still reads the program.
+    """
+    import tempfile
+
+    t0 = time.monotonic()
+    try:
+        with tempfile.TemporaryDirectory(prefix='ladrc-check-') as scratch:
+            r = subprocess.run([sys.executable, str(Path(__file__).with_name('gcode_path.py')),
+                                str(path), initcode], capture_output=True, text=True,
+                               timeout=300, check=False, cwd=scratch)
+        result = json.loads(r.stdout.strip().splitlines()[-1])
+    except (OSError, subprocess.TimeoutExpired, ValueError, IndexError) as exc:
+        status('check', program=str(program), checked=False, note=' '.join(str(exc).split())[:200])
+        return
+    ok = result['result'] <= result['min_error']
+    status('check', program=str(program), checked=True, ok=ok, moves=len(result['moves']),
+           seconds=round(time.monotonic() - t0, 3))
+    if not ok:
+        raise ProgramError(result['error_text'].replace(str(path), str(program)),
+                           int(result['line']), 'open')
+
+
+def error_messages(channel, with_kind: bool = False) -> list:
+    """Return the messages waiting on LinuxCNC's error channel (``(kind, text)`` with kinds)."""
     out = []
     while True:
         msg = channel.poll()
         if not msg:
             return out
-        out.append(str(msg[1]))
+        out.append((int(msg[0]), str(msg[1])) if with_kind else str(msg[1]))
+
+
+def is_error(kind: int) -> bool:
+    """Return whether an error channel message is an error (not a text or a display message)."""
+    import linuxcnc
+
+    return kind in (linuxcnc.NML_ERROR, linuxcnc.OPERATOR_ERROR)
 
 
 def main(argv: list[str]) -> int:
@@ -137,6 +203,8 @@ def main(argv: list[str]) -> int:
         if not program.name:
             raise RuntimeError('no [LADRC]PROGRAM to run')
         path = run_filter(ini, program, Path(ini_path).parent, status)
+        check_program(path, program, ini.find('RS274NGC', 'RS274NGC_STARTUP_CODE') or '',
+                      status)
         c.mode(linuxcnc.MODE_AUTO)
         c.wait_complete()
         c.program_open(str(path))
@@ -156,9 +224,15 @@ def main(argv: list[str]) -> int:
         if not RUNNING[0]:
             status('stopped', before='run')
             return 0
-        c.auto(linuxcnc.AUTO_RUN, 0)
+        c.auto(linuxcnc.AUTO_RUN, 0)  # (no wait_complete: it lasts while moves are queued)
         status('run')
-        watch(s, e, status)
+        try:
+            watch(s, e, status, str(path), str(program))
+        except ProgramError:
+            hal.set_p('ladrc.program-error', '1')  # the bridge: the job aborted
+            c.abort()  # (not the moves LinuxCNC queued before the error)
+            c.wait_complete()
+            raise
         s.poll()
         status('end', interp_state=s.interp_state, task_state=s.task_state,
                position_mm=[round(v, 4) for v in s.actual_position[:2]])
@@ -173,21 +247,35 @@ def main(argv: list[str]) -> int:
                 time.sleep(0.1)
         status('exit')
         return 0
+    except ProgramError as exc:
+        s.poll()
+        status('error', text=str(exc), program_error=exc.text, line=exc.line, when=exc.when,
+               program=str(program), position_mm=[round(v, 4) for v in s.actual_position[:2]])
+        return 1
     except Exception as exc:  # noqa: BLE001 (one line, LinuxCNC shuts down)
         status('error', text=' '.join(str(exc).split())[:600])
         return 1
 
 
-def watch(s, e, status: Status) -> None:
-    """Follow the run to the program's end (or a stop), writing each change of state."""
+def watch(s, e, status: Status, opened: str = '', program: str = '') -> None:
+    """Follow the run to the program's end (or a stop), writing each change of state.
+
+    Raises :class:`ProgramError` on an error on LinuxCNC's error channel (its line: the one
+    LinuxCNC's text names, else the one motion was executing; the text names the program,
+    not its filtered copy ``opened``).
+    """
     import linuxcnc
 
     seen_running = False
     last = None
+    t_run = time.monotonic()
     while RUNNING[0]:
         s.poll()
-        for msg in error_messages(e):
-            status('error_channel', text=msg)
+        for kind, msg in error_messages(e, with_kind=True):
+            if is_error(kind):
+                raise ProgramError(msg.replace(opened, program) if opened else msg,
+                                   int(s.motion_line), 'run')
+            status('error_channel', text=msg, kind=kind)
         state = ('estop' if s.task_state == linuxcnc.STATE_ESTOP
                  else 'off' if s.task_state != linuxcnc.STATE_ON
                  else 'paused' if s.paused
@@ -199,7 +287,7 @@ def watch(s, e, status: Status) -> None:
             last = state
         if state in ('running', 'paused'):
             seen_running = True
-        elif state == 'idle' and seen_running:
+        elif state == 'idle' and (seen_running or time.monotonic() - t_run > START_GRACE_S):
             return
         elif state in ('estop', 'off') and seen_running:
             return

@@ -4,9 +4,10 @@
 ``gcode_path.py FILE [INITCODE]`` parses FILE with LinuxCNC's ``gcode`` module (the rs274ngc
 interpreter AXIS previews with; nothing of ours parses G-code) and prints one JSON object:
 ``result`` (the interpreter's code; above ``min_error``: an error), ``error`` (its text and
-line), ``moves``: ``[kind, line, x_mm, y_mm, feed_mm_min, spindle]`` per canonical move in
-program order (``kind``: ``G0``, ``G1``, ``ARC``; ``spindle``: the M code of the spindle's modal
-group, 3, 4 or 5) and for an arc its centre and turn (``cx_mm``, ``cy_mm``, ``turn``).
+line; ``error_text`` and ``line`` apart), ``moves``: ``[kind, line, x_mm, y_mm, feed_mm_min,
+spindle]`` per canonical move in program order (``kind``: ``G0``, ``G1``, ``ARC``; ``spindle``:
+the M code of the spindle's modal group, 3, 4 or 5) and for an arc its centre and turn
+(``cx_mm``, ``cy_mm``, ``turn``).
 
 The interpreter reads tool data from LinuxCNC's shared memory: a program with T words needs
 a running LinuxCNC (``INI_FILE_NAME`` its INI); without one it may crash (the caller reports
@@ -91,11 +92,13 @@ def main(argv: list[str]) -> int:
         canon = Canon(os.path.join(tmp, 'parse.var'))
         open(canon.parameter_file, 'w').close()
         result, seq = gcode.parse(argv[0], canon, 'G21', argv[1] if len(argv) > 1 else '')
-    error = ''
+    error = text = ''
     if result > gcode.MIN_ERROR:
-        error = f'{gcode.strerror(result)} (line {seq})'
+        text = gcode.strerror(result)
+        error = f'{text} (line {seq})'
     print(json.dumps({'result': int(result), 'min_error': int(gcode.MIN_ERROR),
-                      'error': error, 'moves': canon.moves}))
+                      'error': error, 'error_text': text, 'line': int(seq),
+                      'moves': canon.moves}))
     return 0
 
 

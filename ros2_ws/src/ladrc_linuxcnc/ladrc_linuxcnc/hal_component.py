@@ -11,8 +11,11 @@ may be another minor version that cannot import it. The two talk over a Unix soc
 process listens on (:mod:`.protocol`; one client at a time).
 
 Every ``period_s`` (1 ms) it reads its input pins (the HAL file nets them to LinuxCNC's motion,
-spindle, digital-out and halui pins: docs/linuxcnc.md has the table), sends them to the node
-as a sample, takes the node's newest outputs and drives its output pins:
+spindle, digital-out, analog-out and halui pins: docs/linuxcnc.md has the table; the
+program's pierce values come on ``ladrc.pierce-height``, ``pierce-delay``, ``cut-height`` from
+M68 E0-E2, and the headless display sets ``ladrc.program-error`` when LinuxCNC stops the
+program on an error), sends them to the node as a sample, takes the node's newest outputs and
+drives its output pins:
 
 * ``ladrc.at-speed`` -> ``spindle.0.at-speed``: motion waits for it before the first feed move
   after each M3, so the cut starts only once the height controller is ready to move;
@@ -56,11 +59,14 @@ from ladrc_linuxcnc import protocol as p  # noqa: E402
 IN_FLOAT = ('x-mm', 'y-mm', 'current-vel', 'requested-vel', 'actual-vel', 'distance-to-go',
             'feed-override')
 IN_S32 = ('motion-type', 'program-line')
+IN_PIERCE = ('pierce-height', 'pierce-delay', 'cut-height')
+"""The program's pierce (M68 E0/E1/E2, subroutines/touchoff.ngc): mm, s, mm; 0: none given."""
 IN_BIT = {'spindle-on': p.F_SPINDLE_ON, 'thc-off': p.F_THC_OFF, 'torch-off': p.F_TORCH_OFF,
           'is-running': p.F_RUNNING, 'is-paused': p.F_PAUSED, 'is-idle': p.F_IDLE,
           'machine-on': p.F_MACHINE_ON, 'estop': p.F_ESTOP, 'homed': p.F_HOMED,
           'in-position': p.F_IN_POSITION, 'feed-hold-in': p.F_FEED_HOLD_IN,
-          'at-speed-in': p.F_AT_SPEED_IN, 'beam-gate-in': p.F_BEAM_GATE}
+          'at-speed-in': p.F_AT_SPEED_IN, 'beam-gate-in': p.F_BEAM_GATE,
+          'program-error': p.F_PROGRAM_ERROR}
 OUT_BIT = {'at-speed': p.O_AT_SPEED, 'feed-hold': p.O_FEED_HOLD, 'beam-on': p.O_BEAM,
            'height-ready': p.O_HEIGHT_READY}
 SEND_BUFFER_MAX = 64 * 1024  # a node that reads nothing for this much: samples are dropped
@@ -80,6 +86,7 @@ class Component:
         self.comp = hal.component(name)
         self.pins_in_float = [self.comp.newpin(n, hal.HAL_FLOAT, hal.HAL_IN) for n in IN_FLOAT]
         self.pins_in_s32 = [self.comp.newpin(n, hal.HAL_S32, hal.HAL_IN) for n in IN_S32]
+        self.pins_in_pierce = [self.comp.newpin(n, hal.HAL_FLOAT, hal.HAL_IN) for n in IN_PIERCE]
         self.pins_in_bit = [(self.comp.newpin(n, hal.HAL_BIT, hal.HAL_IN), bit)
                             for n, bit in IN_BIT.items()]
         self.pins_out_bit = [(self.comp.newpin(n, hal.HAL_BIT, hal.HAL_OUT), bit)
@@ -127,18 +134,23 @@ class Component:
 
     # ---- pins ------------------------------------------------------------------------------
     def sample(self, now_ns: int) -> p.LcncSample:
-        """Read the input pins."""
-        f = [pin.get() for pin in self.pins_in_float]
-        s = [pin.get() for pin in self.pins_in_s32]
+        """Read the input pins: the bits first.
+
+        The program's pierce values (M68) are set before its M3, so a sample that shows the
+        spindle on shows them too.
+        """
         flags = 0
         for pin, bit in self.pins_in_bit:
             if pin.get():
                 flags |= bit
+        f = [pin.get() for pin in self.pins_in_float]
+        s = [pin.get() for pin in self.pins_in_s32]
+        pierce = [float(pin.get()) for pin in self.pins_in_pierce]
         if self.safe:
             flags |= p.F_LINK_SAFE
         self.seq += 1
         return p.LcncSample(self.seq, now_ns, *(float(v) for v in f), int(s[0]), int(s[1]),
-                            flags)
+                            flags, *pierce)
 
     def apply(self, out: p.HalOutputs) -> None:
         """Drive the output pins from ``out`` (the adaptive feed within 0..1)."""

@@ -19,8 +19,10 @@ One LinuxCNC runs per machine (its ``/tmp/linuxcnc.lock``, its NML and HAL share
 The run's configuration (:func:`render_run_config`) is the shipped machine configuration
 (``config/ladrc_xy.ini``, ``.hal``, ``.tbl``, ``.var``, ``.nml``) with the keys of a run set:
 the absolute paths of the display, the filter, the HAL component and its socket, the program,
-the home position (the job's start) and the job's rapid feed and acceleration. It is written
-into the run's folder with everything LinuxCNC writes back (the parameter file).
+the subroutines (``config/subroutines``: ``[RS274NGC]SUBROUTINE_PATH``), the home position (the
+job's start), the G54 work offset (where the program's origin lies on the sheet: ``#5221``,
+``#5222`` of the parameter file) and the job's rapid feed and acceleration. It is written into
+the run's folder with everything LinuxCNC writes back (the parameter file).
 
 Plain standard library (the venv's Python): the LinuxCNC side runs on the system's Python.
 """
@@ -127,6 +129,7 @@ class RunSettings:
 
     program: Path
     home_xy_mm: tuple[float, float] = (0.0, 0.0)
+    work_offset_mm: tuple[float, float] = (0.0, 0.0)  # G54: the program's origin on the sheet
     rapid_mm_s: float = 500.0
     accel_mm_s2: float = 2000.0
     exit_at_end: bool = False
@@ -149,8 +152,12 @@ def render_run_config(run_dir: Path, s: RunSettings) -> Path:
     run_dir = Path(run_dir).resolve()
     run_dir.mkdir(parents=True, exist_ok=True)
     src = config_dir()
-    for name in ('ladrc_xy.tbl', 'ladrc_xy.var', 'ladrc_xy.nml'):
+    for name in ('ladrc_xy.tbl', 'ladrc_xy.nml'):
         shutil.copyfile(src / name, run_dir / name)
+    # the parameter file: the G54 offset (#5221 X, #5222 Y, machine units: mm; ascending)
+    ox, oy = (float(v) for v in s.work_offset_mm)
+    (run_dir / 'ladrc_xy.var').write_text(f'5221\t{ox:.6f}\n5222\t{oy:.6f}\n',
+                                          encoding='utf-8')
     display = _wrapper(run_dir / 'ladrc-headless-display', PACKAGE_DIR / 'display.py')
     zfilter = _wrapper(run_dir / 'ladrc-z-filter', PACKAGE_DIR / 'z_filter.py')
     socket_dir = Path(tempfile.mkdtemp(prefix='ladrc-lcnc-', dir='/tmp'))  # short: AF_UNIX
@@ -161,6 +168,7 @@ def render_run_config(run_dir: Path, s: RunSettings) -> Path:
         ('DISPLAY', 'DISPLAY'): display,
         ('FILTER', 'ngc'): zfilter, ('FILTER', 'nc'): zfilter, ('FILTER', 'tap'): zfilter,
         ('RS274NGC', 'PARAMETER_FILE'): run_dir / 'ladrc_xy.var',
+        ('RS274NGC', 'SUBROUTINE_PATH'): src / 'subroutines',
         ('EMCIO', 'TOOL_TABLE'): run_dir / 'ladrc_xy.tbl',
         ('HAL', 'HALFILE'): src / 'ladrc_xy.hal',
         ('TRAJ', 'MAX_LINEAR_VELOCITY'): v, ('TRAJ', 'MAX_LINEAR_ACCELERATION'): a,

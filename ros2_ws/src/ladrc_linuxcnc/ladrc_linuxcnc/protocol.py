@@ -29,7 +29,7 @@ from typing import Any
 SAMPLE = b'S'
 OUTPUTS = b'O'
 HELLO = b'H'
-VERSION = 1
+VERSION = 2
 
 # ---- LinuxCNC's motion.motion-type (emcmot): what the trajectory planner is executing --------
 MOTION_IDLE = 0
@@ -55,13 +55,14 @@ F_FEED_HOLD_IN = 1 << 10    # motion.feed-hold as motion sees it (the net's valu
 F_AT_SPEED_IN = 1 << 11     # spindle.0.at-speed as motion sees it
 F_LINK_SAFE = 1 << 12       # the component drives its safe outputs (no node, or it went silent)
 F_BEAM_GATE = 1 << 13       # the laser gate as HAL drives it (bridge beam AND watchdog)
+F_PROGRAM_ERROR = 1 << 14   # ladrc.program-error: LinuxCNC stopped the program on an error
 
 FLAG_NAMES = {F_SPINDLE_ON: 'spindle_on', F_THC_OFF: 'thc_off', F_TORCH_OFF: 'torch_off',
               F_RUNNING: 'running', F_PAUSED: 'paused', F_IDLE: 'idle',
               F_MACHINE_ON: 'machine_on', F_ESTOP: 'estop', F_HOMED: 'homed',
               F_IN_POSITION: 'in_position', F_FEED_HOLD_IN: 'feed_hold_in',
               F_AT_SPEED_IN: 'at_speed_in', F_LINK_SAFE: 'link_safe',
-              F_BEAM_GATE: 'beam_gate'}
+              F_BEAM_GATE: 'beam_gate', F_PROGRAM_ERROR: 'program_error'}
 
 # ---- the flag bits of the outputs --------------------------------------------------------------
 O_AT_SPEED = 1 << 0         # -> spindle.0.at-speed (motion starts the cut's first feed move)
@@ -86,8 +87,12 @@ class LcncSample:
     motion_type: int          # motion.motion-type (MOTION_*)
     program_line: int         # motion.program-line (the G-code line being executed)
     flags: int                # F_* bits
+    # the program's pierce (M68 E0/E1/E2: subroutines/touchoff.ngc; 0: none given, the job's)
+    pierce_height_mm: float = 0.0  # motion.analog-out-00
+    pierce_delay_s: float = 0.0    # motion.analog-out-01
+    cut_height_mm: float = 0.0     # motion.analog-out-02
 
-    _FMT = struct.Struct('<cQQdddddddiiI')
+    _FMT = struct.Struct('<cQQdddddddiiIddd')
 
     def flag(self, bit: int) -> bool:
         """Return whether flag ``bit`` (``F_*``) is set."""
@@ -113,6 +118,8 @@ class LcncSample:
                                      'requested_vel_mm_s', 'actual_vel_mm_s',
                                      'distance_to_go_mm', 'feed_override', 'motion_type',
                                      'program_line'), astuple(self), strict=False)}
+        out.update(pierce_height_mm=self.pierce_height_mm, pierce_delay_s=self.pierce_delay_s,
+                   cut_height_mm=self.cut_height_mm)
         out.update({name: self.flag(bit) for bit, name in FLAG_NAMES.items()})
         return out
 

@@ -7,12 +7,15 @@ plays the role the project's simulated CNC plays (``ladrc_sim/job/cnc.py``, docs
 "CNC interface") for a CNC that runs a G-code program of its own:
 
 * **Beam-on -> pierce.** ``M3`` (``spindle.0.on``) while the program runs is a cut's request:
-  the bridge calls ``follow/pierce`` with the stages of the job or the configuration
-  (:class:`BridgeParams`), keeps ``spindle.0.at-speed`` low (LinuxCNC waits for it before the
-  first feed move after each M3, without breaking the path: the G0 before it has ended) and
-  opens the beam (``ladrc.beam-on``) once the controller is in position at the first stage;
-  when the controller answers ``ready_to_move`` (from its THC delay on) it raises at-speed and
-  the cut starts. XY never moves before: LinuxCNC's own planner waits.
+  the bridge calls ``follow/pierce`` with the program's pierce where it gave one (a CAM post's
+  ``o<touchoff> call [pierce height] [pierce delay] [cut height]``: the subroutine puts them
+  on ``motion.analog-out-00..02`` before its M3; one stage), else with the stages of the job
+  or the configuration (:class:`BridgeParams`), keeps ``spindle.0.at-speed`` low (LinuxCNC
+  waits for it before the first feed move after each M3, without breaking the path: the G0
+  before it has ended) and opens the beam (``ladrc.beam-on``) once the controller is in
+  position at the first stage; when the controller answers ``ready_to_move`` (from its THC
+  delay on) it raises at-speed and the cut starts. XY never moves before: LinuxCNC's own
+  planner waits.
 * **Hold / THC off.** ``motion.digital-out-02`` (``M62 P2`` synchronised with the next move,
   ``M64 P2`` at once; ``M63``/``M65`` release) -> ``follow/hold`` now (the output changes when
   the move starts, so "at the next segment" is LinuxCNC's part). ``digital-out-03`` (``M62 P3``)
@@ -32,7 +35,9 @@ plays the role the project's simulated CNC plays (``ladrc_sim/job/cnc.py``, docs
   LinuxCNC.
 * **The end.** The program idle after it ran: ``follow/stop``; the job's log
   (:class:`BridgeLog`) is published once the controller commands zero (the job runner's
-  ``JobEnd`` rule).
+  ``JobEnd`` rule). A program that ended without a cut request (0 pierces) is not finished:
+  the job is aborted with that reason. ``ladrc.program-error`` (the headless display: LinuxCNC
+  stopped the program on an error) aborts the job in any phase, before the run included.
 
 Adaptive feed: ``motion.adaptive-feed`` is the controller's ``feed_override_request`` (M52 P1 is
 in the configuration's start-up code).
@@ -186,6 +191,16 @@ def rapid_time_s(length_mm: float, v_mm_s: float, a_mm_s2: float) -> float:
             else length_mm / v_mm_s + v_mm_s / a_mm_s2)
 
 
+def program_pierce(s: p.LcncSample) -> bool:
+    """Return whether a sample carries the program's pierce (M68 E0 set: a touchoff call).
+
+    The height and the cut height positive, the delay not negative, all finite; anything else
+    (0: no call yet) is the job's pierce. The controller checks the values (a refusal aborts).
+    """
+    h, t, c = s.pierce_height_mm, s.pierce_delay_s, s.cut_height_mm
+    return all(math.isfinite(v) for v in (h, t, c)) and h > 0.0 and c > 0.0 and t >= 0.0
+
+
 class Sequencer:
     """The bridge's state (module docstring); one :meth:`step` per LinuxCNC sample."""
 
@@ -277,6 +292,15 @@ class Sequencer:
         return ('lift', {'mode': 1 if by_distance else 0, 'value_mm': self.p.lift_mm,
                          'velocity_mm_s': 0.0})
 
+    def pierce_args(self, s: p.LcncSample) -> dict[str, Any]:
+        """Return the ``follow/pierce`` arguments of a cut request: the program's or the job's."""
+        if program_pierce(s):
+            return {'heights_mm': (s.pierce_height_mm,), 'dwell_s': (s.pierce_delay_s,),
+                    'cut_gap_mm': s.cut_height_mm, 'thc_delay_s': self.p.thc_delay_s}
+        return {'heights_mm': tuple(self.p.pierce_heights_mm),
+                'dwell_s': tuple(self.p.pierce_dwell_s), 'cut_gap_mm': self.p.cut_gap_mm,
+                'thc_delay_s': self.p.thc_delay_s}
+
     def _waited(self, what: str, now_s: float) -> None:
         if self.t_wait >= 0:
             self.log.waits.append((what, round(now_s - self.t_wait, 4)))
@@ -332,6 +356,11 @@ class Sequencer:
                     s.current_vel_mm_s, 3)}
                 log.fault_holds.append(self.fault_logged)
             self.abort(f'the height controller faulted: {a.get("fault_reason", "")}', now_s)
+        elif s.flag(p.F_PROGRAM_ERROR) and self.phase not in ('done', 'aborted'):
+            self.abort(f'LinuxCNC stopped the program on an error (motion at line '
+                       f'{s.program_line}; the error and its line: the display)', now_s,
+                       pause=False)
+            cmds += self._up_and_stop(answers)
         elif active and not alive:
             why = ('no follow/status from the height controller' if answers is None else
                    f'follow/status {status_age_s * 1e3:.0f} ms old (limit '
@@ -366,13 +395,15 @@ class Sequencer:
                 self.pierce_xy, self.pierce_t, self.moved_mm = (s.x_mm, s.y_mm), now_s, 0.0
                 self.t_wait = now_s
                 self.lift_hold = False
-                cmds.append(('pierce', {'heights_mm': tuple(self.p.pierce_heights_mm),
-                                        'dwell_s': tuple(self.p.pierce_dwell_s),
-                                        'cut_gap_mm': self.p.cut_gap_mm,
-                                        'thc_delay_s': self.p.thc_delay_s}))
+                pierce = self.pierce_args(s)
+                cmds.append(('pierce', pierce))
                 log.pierces += 1
                 log.contours.append({'contour': self.contour, 'line': s.program_line,
-                                     'pierce_xy_mm': [round(s.x_mm, 3), round(s.y_mm, 3)]})
+                                     'pierce_xy_mm': [round(s.x_mm, 3), round(s.y_mm, 3)],
+                                     'pierce': {**{k: v for k, v in pierce.items()
+                                                   if k != 'thc_delay_s'},
+                                                'from': 'program' if program_pierce(s)
+                                                else 'job'}})
             elif self.phase == 'pierce':
                 self.moved_mm = max(self.moved_mm, math.hypot(s.x_mm - self.pierce_xy[0],
                                                               s.y_mm - self.pierce_xy[1]))
@@ -448,9 +479,13 @@ class Sequencer:
                                       'reason': 'LinuxCNC M63/M65 P2'}))
             # the program's end
             if self.ran and not running and self.phase not in ('aborted',):
-                self.phase = 'done'
-                log.finished = True
-                self.end_t = now_s
+                if log.pierces == 0:  # nothing cut: never a finished job
+                    self.abort('the program ended without a cut: 0 pierces (no M3, no '
+                               'o<touchoff> call reached)', now_s, pause=False)
+                else:
+                    self.phase = 'done'
+                    log.finished = True
+                    self.end_t = now_s
                 self.at_speed = self.beam_open = False
                 self.contour = 0
         cmds += self.end_step(a, now_s)

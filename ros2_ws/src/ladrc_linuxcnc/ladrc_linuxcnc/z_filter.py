@@ -4,13 +4,19 @@
 The LADRC laser's LinuxCNC has no Z axis: Z (the cutting head's height) belongs to the height
 controller. A program written for a machine with Z (a plasma or laser CAM's, a hand-written
 one) names Z; LinuxCNC would refuse it. Like plasmac's filter (``qtplasmac_gcode``, "comment
-out all Z commands"), this one makes every Z word a comment before LinuxCNC reads the program:
+out all Z commands"), this one turns every Z word into a comment in place and keeps every other
+word of the line, so that the program's modal state stays what its author wrote:
 
-* a line with Z and another axis or arc word (X, Y, I, J, R, ...): the Z word and its value
-  become a comment,
-  ``G0 X10 Y5 Z3`` -> ``G0 X10 Y5 (Z3)``;
-* a line whose only axis word is Z: the whole line becomes a comment, ``G0 Z5`` -> ``(G0 Z5)``.
+* ``G0 X10 Y5 Z3`` -> ``G0 X10 Y5 (Z3)``;
+* ``N0120 G00 Z0.8`` -> ``N0120 G00 (Z0.8)``: the G00 stays modal for the next ``X.. Y..``;
+* ``G01 Z-0.02 F20`` -> ``G01 (Z-0.02) F20``: G01 and its feed stay;
+* a code whose axis words are its arguments (``G28``, ``G30``, ``G38.2``-``G38.5``, ``G52``,
+  ``G92``) and that names no axis but Z goes into the comment with the Z
+  (``G92 Z0`` -> ``(G92) (Z0)``): without its Z it would mean another thing (``G28`` alone
+  moves every axis home) or be an error (a Z probe, a Z offset: the height controller's
+  capacitive sensor is this machine's probe).
 
+Line for line: the output has the input's lines, so LinuxCNC's line numbers are the file's.
 Nothing else changes: the program is LinuxCNC's to read (its interpreter, never a parser of
 ours). Comments (``( ... )`` and ``;`` to the end of the line) are left alone; a Z value given
 by an expression (``Z[#1+2]``) or a parameter (``Z#<h>``) is commented out with its brackets.
@@ -26,6 +32,8 @@ from __future__ import annotations
 import sys
 
 AXES = 'XYABCUVWIJKR'  # another axis or an arc's word: only the Z word goes
+Z_ARGUMENT_CODES = (28.0, 30.0, 38.2, 38.3, 38.4, 38.5, 52.0, 92.0)
+"""G codes whose axis words are their arguments: with Z alone, commented out with it."""
 
 
 def _split(line: str) -> tuple[str, str]:
@@ -77,8 +85,21 @@ def _words(code: str):
         i = j
 
 
+def _g_value(text: str) -> float | None:
+    """Return the number of a G word's text (``G38.2`` -> 38.2), None if not a plain number."""
+    try:
+        return round(float(text[1:].replace(' ', '')), 3)
+    except ValueError:
+        return None
+
+
+def _comment(text: str) -> str:
+    """Return ``text`` as one comment (its own parentheses made brackets: no nesting)."""
+    return '(' + text.strip().replace('(', '[').replace(')', ']') + ')'
+
+
 def filter_line(line: str) -> tuple[str, int]:
-    """Return the line with its Z words commented out, and how many there were."""
+    """Return the line with its Z words commented out in place, and how many there were."""
     body = line.rstrip('\r\n')
     eol = line[len(body):]
     code, tail = _split(body)
@@ -86,16 +107,18 @@ def filter_line(line: str) -> tuple[str, int]:
     zs = [(a, b) for a, b, letter in words if letter == 'Z']
     if not zs:
         return line, 0
+    spans = list(zs)
     if not any(letter in AXES for _, _, letter in words):
-        inner = code.strip().replace('(', '[').replace(')', ']')
-        return f'({inner}){tail}{eol}', len(zs)
+        spans += [(a, b) for a, b, letter in words
+                  if letter == 'G' and _g_value(code[a:b]) in Z_ARGUMENT_CODES]
     out, last = [], 0
-    for a, b in zs:
-        out.append(code[last:a].rstrip(' \t') + ' ')
-        out.append('(' + code[a:b].strip().replace('(', '[').replace(')', ']') + ')')
+    for a, b in sorted(spans):
+        before = code[last:a]
+        out.append(before.rstrip(' \t') + ' ' if before.strip() else before)
+        out.append(_comment(code[a:b]))
         last = b
     out.append(code[last:])
-    return ''.join(out).lstrip(' ') + tail + eol, len(zs)
+    return ''.join(out) + tail + eol, len(zs)
 
 
 def main(argv: list[str]) -> int:

@@ -29,7 +29,7 @@ def test_frames_round_trip():
 
 def test_z_words_are_commented_out():
     assert filter_line('G0 X10 Y5 Z3\n') == ('G0 X10 Y5 (Z3)\n', 1)
-    assert filter_line('G0 Z5\n') == ('(G0 Z5)\n', 1)
+    assert filter_line('G0 Z5\n') == ('G0 (Z5)\n', 1)
     assert filter_line('G1 X1 (no z here) F100\n') == ('G1 X1 (no z here) F100\n', 0)
 
 
