@@ -33,9 +33,11 @@ A contact is a true gap <= 0 (sim truth). Last line: one JSON object with at lea
 
 CiA 402 rows (``canopen``, issue 41) run the same follow on the CANopen path (the CiA 402
 driver node, the emulated drive, the test bus; free-running at 1 ms, the period the test bus
-holds on 2 cores): the driver SIGKILLed, the emulated drive SIGKILLed, the bus server killed, an
-EMCY following error, a second master's RPDOs at -50 mm/s, random frames on the bus; last-line
-keys ``canopen_kill_stop_ms`` and ``canopen_node_crashes``.
+holds on 2 cores): the driver SIGKILLed (the shipped drive's RPDO event timer; and a drive
+without one, ``examples/servo_a_heartbeat.yaml``, whose heartbeat consumer stops it), the
+emulated drive SIGKILLed, the bus server killed, an EMCY following error, a second master's
+RPDOs at -50 mm/s, random frames on the bus; last-line keys ``canopen_kill_stop_ms``,
+``canopen_heartbeat_kill_stop_ms`` and ``canopen_node_crashes``.
 
 LinuxCNC rows (``linuxcnc``, issue 42; ``bringup --cnc linuxcnc --fault``, a three-contour
 job): LinuxCNC SIGKILLed while cutting (the controller lifts the head and stops), the bridge
@@ -932,6 +934,10 @@ bus.shutdown()
 """
 
 
+HEARTBEAT_DEVICE = (ROOT / 'ros2_ws' / 'src' / 'ladrc_cia402' / 'examples'
+                    / 'servo_a_heartbeat.yaml')
+
+
 def canopen_rows() -> dict:
     """Rows of the CiA 402 path: the driver node and the emulated drive on the test bus.
 
@@ -961,14 +967,15 @@ def canopen_rows() -> dict:
 
     def one(name: str, inject, scenario_file: str = scenario, survivors=('follow', 'sim',
                                                                         'driver'),
-            until_t_s: float | None = None) -> dict:
+            until_t_s: float | None = None, device: str = '') -> dict:
         os.environ['ROS_DOMAIN_ID'] = str(next(domains))
         nodes, probe, server = NodeProcesses(), Probe(f'fault_canopen_{len(ROWS)}'), None
         t_sigkill = None
         try:
             server = start_bus_server(nodes.logdir / 'bus.log')
             specs = {s.executable: s for s in node_specs(
-                scenario_file, drive='cia402', bus=server.url, period_s=CANOPEN_PERIOD_S)}
+                scenario_file, drive='cia402', bus=server.url, period_s=CANOPEN_PERIOD_S,
+                device=device)}
             for exe, short in (('follow_node', 'follow'), ('driver_node', 'driver'),
                                ('sim_node', 'sim')):
                 extra = ['-p', 'wait_for_controller_s:=0.0'] if exe == 'sim_node' else []
@@ -1061,6 +1068,11 @@ def canopen_rows() -> dict:
     r = one('driver SIGKILL while following',
             lambda nodes, server: nodes.kill('driver') or True, survivors=('follow', 'sim'))
     out['canopen_driver_kill_stop_ms'] = r['stop_ms']
+    # a drive without an RPDO event timer: its heartbeat consumer (100 ms) stops it
+    r = one('driver SIGKILL, heartbeat watchdog (examples/servo_a_heartbeat.yaml)',
+            lambda nodes, server: nodes.kill('driver') or True, survivors=('follow', 'sim'),
+            device=str(HEARTBEAT_DEVICE))
+    out['canopen_heartbeat_kill_stop_ms'] = r['stop_ms']
     one('emulated drive SIGKILL', lambda nodes, server: nodes.kill('sim') or True,
         survivors=('follow', 'driver'))
     one('bus server SIGKILL', lambda nodes, server: os.kill(server.pid, signal.SIGKILL) or True)
@@ -1141,6 +1153,7 @@ def main() -> None:
             r['row'] for r in ROWS
             if r.get('gap_over_target', 1.0) < 0.7 and r['row'].endswith(OFF_LABEL)],
         'canopen_kill_stop_ms': canopen.get('canopen_driver_kill_stop_ms'),
+        'canopen_heartbeat_kill_stop_ms': canopen.get('canopen_heartbeat_kill_stop_ms'),
         'canopen_node_crashes': canopen.get('canopen_node_crashes'),
         'live_error': live_error,  # '' when every live row ran
         # the LinuxCNC rows that could not run (LinuxCNC missing; null: not asked for)

@@ -91,7 +91,9 @@ def test_each_shipped_device_file_plans_with_the_types_of_its_eds():
     assert not c.has_abort_connection and not any(w.index == 0x6007 for w in c.writes)
     assert {w.node_id for w in c.writes} == {5, 6}
     assert c.tpdo_cobs() == (0x185, 0x285, 0x186)
-    for p in (ship, a, b, c):
+    t = _plan(SHIPPED, gap=replace(load_device(SHIPPED).gap, source='topic'))
+    assert 'gap' not in t.roles and 'gap' not in [e.name for p in t.tpdos for e in p.entries]
+    for p in (ship, a, b, c, t):
         text = plan_text(p)
         assert 'bus load' in text and 'watchdog' in text
         assert 0.0 < p.bus_load < 1.0

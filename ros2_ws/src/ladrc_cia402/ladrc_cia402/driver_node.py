@@ -115,6 +115,7 @@ class DriverNode(LoopNode):
         self.last: Sample | None = None
         self.ever_commanded = False  # faults of the start are reset until the first motion
         self.has_commander = False
+        self.publish_gap = True  # False: the gap comes from the sensor's own node (gap: topic)
 
     # ---- commands -------------------------------------------------------------------------
     def take_commands(self) -> bool:
@@ -196,9 +197,10 @@ class DriverNode(LoopNode):
         reasons += [s.fault_reason] if s.fault_reason else []
         fault = bool(reasons)
         # the raw value of an analog amplifier is its count (docs/cia402.md, "Units")
-        self.pub_gap.publish(self.out_gap.pack(
-            sec, nsec, seq=self.gap_seq, gap_mm=math.nan if self.p.raw_only else s.gap_mm,
-            raw_hz=float(s.analog_counts), valid=bool(s.gap_valid), status=int(s.gap_status)))
+        if self.publish_gap:
+            self.pub_gap.publish(self.out_gap.pack(
+                sec, nsec, seq=self.gap_seq, gap_mm=math.nan if self.p.raw_only else s.gap_mm,
+                raw_hz=float(s.analog_counts), valid=bool(s.gap_valid), status=int(s.gap_status)))
         self.pub_fb.publish(self.out_fb.pack(
             sec, nsec, seq=self.seq, position_mm=s.position_mm, velocity_mm_s=s.velocity_mm_s,
             drive_enabled=bool(s.enabled) and not fault, drive_fault=fault,
@@ -422,6 +424,7 @@ def main(argv: list[str] | None = None) -> int:
                 plan = p.plan()
             except PlanError as exc:
                 raise ConfigError(str(exc)) from None
+            node.publish_gap = plan.gap_source != 'topic'
             for line in plan_text(plan).splitlines():
                 node.get_logger().info(line)
             remote = _remote_node(net, plan.node_id, plan.eds_path)
