@@ -279,6 +279,8 @@ def test_without_a_cnc_in_position_follows_followed():
     ('hold', dict(hold=False, at_next_segment=False, reason='')),
     ('leapfrog', dict(lift_mm=8.0, rapid_length_mm=200.0, rapid_feed_mm_s=500.0,
                       arrive_height_mm=3.0)),
+    ('pierce', dict(heights_mm=(3.0,), dwell_s=(0.1,), cut_gap_mm=1.0, thc_delay_s=0.0,
+                    locked=True)),
 ])
 def test_cnc_commands_survive_the_event_codec(name, kwargs):
     ev = encode(name, kwargs)
@@ -477,3 +479,70 @@ def test_the_job_planner_runs_at_the_override_share_of_the_feed():
         full.step()
         half.step(override=0.5)
     assert full.v == pytest.approx(200.0) and half.v == pytest.approx(100.0)
+
+
+# ------------------------------------------------------------------------------ locked pierce
+LOCKED = dict(heights_mm=(3.0, 2.0), dwell_s=(0.05, 0.05), cut_gap_mm=1.0, thc_delay_s=0.02,
+              locked=True)
+
+
+def void_reading(wide_mm: float):
+    """Return a hook: the reading ``wide_mm`` wider than the gap (the field over voids)."""
+    def hook(i, d):
+        d['gap_mm'] += wide_mm
+    return hook
+
+
+def test_a_locked_pierce_holds_heights_above_the_level_followed_last_by_the_encoder():
+    loop, _ = following()
+    c = loop.c
+    level = loop.axis.position_mm - loop.gap[-1]  # the sheet at 0: followed at 1 mm
+    assert c.command('pierce', **LOCKED)[0]
+    subs, inpos = [], []
+    i0 = loop.i
+    for _ in range(int(0.6 / H)):
+        loop.run(1, void_reading(1.5))  # voids around: the reading 1.5 mm too wide throughout
+        d = c.internals()
+        subs.append(d['substate'])
+        inpos.append(d['in_position'])
+    gap = np.array(loop.gap[i0:])
+    # up to the first stage, then down to the second and the cut gap, by the encoder: the wide
+    # reading never drew it toward the sheet (a follow would have closed in by 1.5 mm)
+    assert gap.max() == pytest.approx(3.0, abs=0.06) and gap.min() > 0.95
+    assert abs(gap[-1] - 1.0) < 0.01 and abs(level) < 0.02
+    assert subs[0] == int(SubState.PIERCE) and subs[-1] == int(SubState.HOLD)
+    d = c.internals()
+    assert d['ready_to_move'] and d['in_position'] and int(c.state) == LADRC
+    assert 'height locked' in d['hold_reason']
+
+
+def test_a_locked_pierce_moves_up_where_the_sheet_is_nearer_and_a_collision_still_faults():
+    loop, _ = following()
+    c = loop.c
+    assert c.command('pierce', **LOCKED)[0]
+    loop.run(int(0.4 / H))
+    t0 = loop.i * H
+    loop.sheet = lambda t: 0.6 * min(max(t - t0, 0.0) / 0.1, 1.0)  # 0.6 mm higher in 0.1 s
+    i0 = loop.i
+    loop.run(int(0.3 / H))
+    assert min(loop.gap[i0:]) > 0.75 and abs(loop.gap[-1] - 1.0) < 0.05  # level raised
+    # a real fault still faults: collision evidence (the reading shorted) retracts
+
+    def short(i, d):
+        d['gap_valid'], d['gap_status'], d['gap_mm'] = False, 2, 0.0
+    loop.run(20, short)
+    assert c.state.name == 'FAULT' and max(loop.u[-20:]) > 0.0
+
+
+def test_a_locked_pierce_needs_a_level_followed_first_and_the_next_command_ends_it():
+    c = FollowController(ControllerParams())
+    ok, msg = c.command('pierce', **LOCKED)
+    assert not ok and 'no sheet level followed' in msg  # IDLE: nothing followed yet
+    loop, _ = following()
+    assert loop.c.command('pierce', **LOCKED)[0]
+    loop.run(int(0.8 / H))
+    assert loop.c.internals()['substate'] == int(SubState.HOLD)
+    assert loop.c.command('leapfrog', lift_mm=6.0, rapid_length_mm=100.0,
+                          rapid_feed_mm_s=500.0, arrive_height_mm=3.0)[0]
+    loop.run(2)
+    assert loop.c.internals()['substate'] == int(SubState.LEAPFROG)

@@ -57,8 +57,9 @@ def test_loose_lines_are_chained_and_an_open_chain_is_refused(tmp_path):
 
     p = load_program(drawing(tmp_path, 4, loose), kerf_mm=0.0)
     assert len(p.parts) == 1 and p.parts[0].area == pytest.approx(1200.0)
-    with pytest.raises(ProgramError, match=r'does not close: open end at \(0\.000, 5\.000\)'):
-        load_program(drawing(tmp_path, 4, lambda m: loose(m, False), 'open.dxf'), kerf_mm=0.0)
+    with pytest.raises(ProgramError, match=r'does not close: its ends \(0\.000, 5\.000\)'):
+        load_program(drawing(tmp_path, 4, lambda m: loose(m, False), 'open.dxf'), kerf_mm=0.0,
+                     open_contours='refuse')
 
 
 def test_kerf_on_the_scrap_side_holes_first_and_lead_ins_in_the_scrap(tmp_path):

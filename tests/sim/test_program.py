@@ -167,18 +167,21 @@ def test_loose_lines_arcs_and_reversed_pieces_chain_into_one_contour(tmp_path):
 
 
 def test_an_open_chain_is_refused_naming_its_open_ends(tmp_path):
-    def build(msp):  # an L whose last side stops 0.5 mm short of the start
-        pts = [(0, 0), (40, 0), (40, 30), (0, 30), (0, 0.5)]
+    def build(msp):  # an L whose last side stops 0.8 mm short of the start
+        pts = [(0, 0), (40, 0), (40, 30), (0, 30), (0, 0.8)]
         for a, b in zip(pts[:-1], pts[1:], strict=True):
             msp.add_line(a, b)
     path = drawing(tmp_path, build)
     with pytest.raises(ProgramError) as exc:
-        load_program(path, kerf_mm=0.0)
+        load_program(path, kerf_mm=0.0, open_contours='refuse')
     text = one_line(exc, path)
-    assert 'does not close' in text and '(0.000, 0.500)' in text and '(0.000, 0.000)' in text
-    assert '0.500 mm apart' in text
-    # within the tolerance the same chain closes
-    assert len(load_program(path, kerf_mm=0.0, tolerance_mm=0.6).parts) == 1
+    assert 'does not close' in text and '(0.000, 0.800)' in text and '(0.000, 0.000)' in text
+    assert '0.800 mm apart' in text and 'LINE #' in text
+    with pytest.raises(ProgramError, match='no closed contour'):  # cut_closed: none to cut
+        load_program(path, kerf_mm=0.0)
+    # within the join tolerance the same chain closes, the gap reported
+    p = load_program(path, kerf_mm=0.0, join_tolerance_mm=0.9)
+    assert len(p.parts) == 1 and p.reading['largest_gap_closed_mm'] == pytest.approx(0.8)
 
 
 def test_crossing_contours_are_refused(tmp_path):

@@ -278,12 +278,17 @@ def test_a_mirrored_insert_mirrors_its_bulged_corner(nest_dxf):
 
 
 # ------------------------------------------------------------------------------ layers
-def test_layers_select_what_is_read_and_open_contours_are_refused_naming_the_layer(tmp_path):
+def test_layers_select_what_is_read_and_open_contours_are_listed_or_refused(tmp_path):
     path = nest_file(tmp_path / 'marked.dxf', marks=True)
+    listed = load_program(path, kerf_mm=0.2)  # cut_closed: the parts cut, the line listed
+    assert len(listed.contours) == 12
+    (line,) = listed.reading['open_contours']
+    assert line['layer'] == 'MARK' and line['length_mm'] == pytest.approx(40.0)
     with pytest.raises(ProgramError) as exc:
-        load_program(path, kerf_mm=0.2)
+        load_program(path, kerf_mm=0.2, open_contours='refuse')
     text = str(exc.value)
     assert '\n' not in text and 'a contour does not close' in text and "layer 'MARK'" in text
+    assert line['entity'] in text and line['entity'].startswith('LINE #')
     p = load_program(path, kerf_mm=0.2, layers=('nest',))  # case-insensitive
     assert len(p.contours) == 12 and p.layers == ('NEST',)
     with pytest.raises(ProgramError) as exc:
@@ -406,3 +411,271 @@ def test_ladrc_job_cuts_the_nest_of_inserts_to_its_end(tmp_path, capsys):
     assert f['contacts'] == 0 and f['faults'] == 0 and f['pierces'] == 12
     assert len(f['min_true_gap_per_contour_mm']) == 12  # every contour of every placed part
     assert f['min_gap_over_target_cutting'] >= 0.7
+
+
+# ------------------------------------------------------------------------------ as a CAM reads
+def entities_only(path: Path) -> Path:
+    """Rewrite the DXF ``path`` as its ENTITIES section alone (an R12 file as CAMs write it)."""
+    lines = path.read_text().splitlines()
+    pairs = list(zip(lines[0::2], lines[1::2], strict=True))
+    out, keep = [], False
+    for k, (code, value) in enumerate(pairs):
+        if (code.strip(), value.strip()) == ('0', 'SECTION'):
+            keep = pairs[k + 1][1].strip() == 'ENTITIES'
+        if keep:
+            out.append((code, value))
+        if keep and (code.strip(), value.strip()) == ('0', 'ENDSEC'):
+            keep = False
+    path.write_text(''.join(f'{c}\n{v}\n' for c, v in out) + '  0\nEOF\n')
+    return path
+
+
+GAPS_MM = (0.1, 0.25, 0.446, 0.3)  # where each side of the plate stops short of the next
+
+
+def gapped_inch_plate(path: Path) -> Path:
+    """Write a 4 x 2.5 in plate of four LINEs, each stopping short (GAPS_MM), and a hole.
+
+    R12, ENTITIES only: no HEADER, no units (the job file says inches).
+    """
+    doc = ezdxf.new('R12')
+    msp = doc.modelspace()
+    corners = [(0.5, 0.5), (4.5, 0.5), (4.5, 3.0), (0.5, 3.0)]
+    for k, gap in enumerate(GAPS_MM):
+        (ax, ay), (bx, by) = corners[k], corners[(k + 1) % 4]
+        n = math.hypot(bx - ax, by - ay)
+        msp.add_line((ax, ay), (bx - (bx - ax) / n * gap / 25.4, by - (by - ay) / n * gap / 25.4))
+    msp.add_circle((1.5, 1.75), 0.4)
+    doc.saveas(str(path))
+    return entities_only(path)
+
+
+def stray_line_nest(path: Path) -> Path:
+    """Write an AC1015 nest with a lone 3.5 mm LINE beside its first part.
+
+    The part: one closed LWPOLYLINE with bulges, two circles and a small round hole in it; a
+    second part beside it.
+    """
+    doc = ezdxf.new('R2000', units=4)
+    msp = doc.modelspace()
+    b = math.tan(math.pi / 8.0)  # quarter-circle corners of radius 5
+    msp.add_lwpolyline([(15, 10, 0), (65, 10, b), (70, 15, 0), (70, 45, b), (65, 50, 0),
+                        (15, 50, b), (10, 45, 0), (10, 15, b)], format='xyb', close=True)
+    msp.add_circle((25, 30), 8)
+    msp.add_circle((50, 30), 8)
+    msp.add_circle((62, 43), 2.5)  # smaller than the nozzle: cut locked
+    msp.add_lwpolyline([(90, 10), (130, 10), (130, 50), (90, 50)], close=True)
+    msp.add_line((75, 20), (75, 23.5))  # the stray line
+    doc.saveas(str(path))
+    return path
+
+
+def duplicated_plate(path: Path) -> Path:
+    """Write a square plate with a hole, drawn over itself, and a stub.
+
+    The square as LINEs and as an LWPOLYLINE, a line over part of one side, the circle twice,
+    a 0.2 mm line apart.
+    """
+    doc = ezdxf.new('R2010', units=4)
+    msp = doc.modelspace()
+    corners = [(10, 10), (70, 10), (70, 60), (10, 60)]
+    for k in range(4):
+        msp.add_line(corners[k], corners[(k + 1) % 4])
+    msp.add_lwpolyline(corners, close=True)        # the same outline again
+    msp.add_line((20, 10), (50, 10))                # over part of the bottom side
+    msp.add_circle((40, 35), 10)
+    msp.add_circle((40, 35), 10)                    # drawn twice
+    msp.add_line((80, 30), (80.2, 30))              # a stub
+    doc.saveas(str(path))
+    return path
+
+
+def letter(msp, x: float, y: float, kind: str, h: float = 5.0) -> float:
+    """Draw one engraved letter of closed SPLINEs at (x, y); return its advance.
+
+    'O': an outline and its counter; 'I': a bar of four open splines end to end; 'D': a lobe.
+    """
+    if kind == 'O':
+        for rx, ry, n in ((1.75, h / 2, 12), (0.8, h / 2 - 1.0, 10)):
+            fit = [(x + 1.75 + rx * math.cos(a), y + h / 2 + ry * math.sin(a))
+                   for a in np.linspace(0.0, math.tau, n, endpoint=False)]
+            msp.add_spline(fit).closed = True
+        return 4.2
+    if kind == 'I':
+        c = [(x, y), (x + 1.2, y), (x + 1.2, y + h), (x, y + h)]
+        for a, b in zip(c, c[1:] + c[:1], strict=True):
+            msp.add_spline([a, ((a[0] + b[0]) / 2 + 0.02, (a[1] + b[1]) / 2), b])
+        return 2.0
+    fit = [(x + 1.8 + 1.8 * math.cos(a) * (1 + 0.2 * math.sin(3 * a)), y + h / 2 + h / 2 *
+            math.sin(a)) for a in np.linspace(0.0, math.tau, 16, endpoint=False)]
+    msp.add_spline(fit).closed = True
+    return 4.2
+
+
+def text_plate(path: Path, rows: int = 2, text: str = 'OIDOIDODOI') -> Path:
+    """Write a plate with engraved text: rows of SPLINE letters among holes.
+
+    Six round holes of 8 mm, two slots, letters 5 mm high and 0.8 mm apart: contours smaller
+    than the sensor's field, each pierced next to the voids of the letters cut before it.
+    """
+    doc = ezdxf.new('R2010', units=4)
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(10, 10), (130, 10), (130, 80), (10, 80)], close=True)
+    for i in range(6):
+        msp.add_circle((25 + 18 * i, 68), 4)
+    for x in (25, 95):
+        msp.add_lwpolyline([(x, 20, 0, 0, 0), (x + 20, 20, 0, 0, 1), (x + 20, 26, 0, 0, 0),
+                            (x, 26, 0, 0, 1)], format='xyseb', close=True)
+    for r in range(rows):
+        x = 25.0
+        for ch in text:
+            x += letter(msp, x, 36 + 8 * r, ch)
+    doc.saveas(str(path))
+    return path
+
+
+def test_a_stray_open_line_is_listed_and_every_closed_contour_cut(tmp_path):
+    path = stray_line_nest(tmp_path / 'stray.dxf')
+    p = load_program(path, kerf_mm=0.2)
+    assert len(p.contours) == 5 and len(p.parts) == 2
+    (line,) = p.reading['open_contours']
+    assert line['layer'] == '0' and line['length_mm'] == pytest.approx(3.5)
+    assert sorted(line['ends_mm']) == [[75.0, 20.0], [75.0, 23.5]]
+    with pytest.raises(ProgramError) as exc:  # refuse: one line naming the entity
+        load_program(path, kerf_mm=0.2, open_contours='refuse')
+    text = str(exc.value)
+    assert '\n' not in text and text.startswith(f"{path}: {line['entity']} on layer '0': ")
+    assert 'open_contours: cut_closed' in text and 'join_tolerance_mm' in text
+
+
+def test_sub_mm_gaps_of_an_inch_r12_entities_only_file_are_joined_and_reported(tmp_path):
+    path = gapped_inch_plate(tmp_path / 'gaps.dxf')
+    assert path.read_text().splitlines()[3].strip() == 'ENTITIES'  # nothing before it
+    p = load_program(path, kerf_mm=0.2, units='in')
+    assert p.units == 'in' and len(p.contours) == 2
+    assert p.reading['joins'] == 4
+    assert p.reading['largest_gap_closed_mm'] == pytest.approx(max(GAPS_MM), abs=1e-3)
+    assert p.parts[0].area == pytest.approx(4.0 * 2.5 * 25.4 ** 2 - math.pi * (0.4 * 25.4) ** 2,
+                                            rel=1e-3)
+    # a tolerance below the widest gap: that contour stays open, and no closed one is left
+    with pytest.raises(ProgramError) as exc:
+        load_program(path, kerf_mm=0.2, units='in', join_tolerance_mm=0.2,
+                     open_contours='refuse')
+    assert 'LINE #' in str(exc.value) and "on layer '0'" in str(exc.value)
+
+
+def test_duplicates_overlaps_and_stubs_are_removed_and_counted(tmp_path):
+    p = load_program(duplicated_plate(tmp_path / 'dup.dxf'), kerf_mm=0.2)
+    assert len(p.contours) == 2 and len(p.parts) == 1
+    r = p.reading
+    # the four LINEs under the LWPOLYLINE drawn over them, the overlap, the second circle
+    assert r['duplicates_removed'] == 6 and r['short_dropped'] == 1 and r['open_contours'] == []
+    assert p.parts[0].area == pytest.approx(60 * 50 - math.pi * 100, rel=1e-3)
+
+
+def test_the_text_plate_orders_small_contours_away_from_voids_and_pierces_over_material(
+        tmp_path):
+    path = text_plate(tmp_path / 'text.dxf')
+    p = load_program(path, kerf_mm=0.2, small_contour_mm=8.0)
+    cut: list = []
+    for c in p.contours:
+        pierce = Point(c.pierce_xy)
+        assert not any(r.contains(pierce) for r in cut)  # never over a void already cut
+        if c.inner:
+            assert c.region.contains(pierce)  # over the slug's material
+        cut.append(c.region)
+    small = [c for c in p.contours if c.inner and c.size_mm < 8.0]
+    assert len(small) > 20 and p.contours.index(small[0]) >= 6  # the large holes first
+    nearest = load_program(path, kerf_mm=0.2)  # nearest next only
+    assert [c.pierce_xy for c in nearest.contours] != [c.pierce_xy for c in p.contours]
+
+
+def job_figures_of(rc_out) -> dict:
+    rc, out, _ = rc_out
+    assert rc == 0, out
+    return figures(out)
+
+
+TEXT_JOB = """name: text_plate
+dxf: text.dxf
+sheet:
+  width_mm: 140
+  height_mm: 90
+  surface: {tilt_x: 0.0005, wave_amp_mm: 0.2, wave_length_mm: 250}
+cut: {kerf_mm: 0.2, lead_in_mm: 3.0}
+cnc: {feed_mm_s: 80, rapid_mm_s: 500, accel_mm_s2: 2000, pierce_heights_mm: [3.0],
+      pierce_dwell_s: [0.1]}
+sensor: {noise_std_mm: 0.003, quant_mm: 0.001}
+start_xy: [5.0, 5.0]
+seed: 1
+"""
+
+
+def test_ladrc_job_cuts_the_text_plate_locked_and_unlocked_it_is_held_as_an_edge(tmp_path,
+                                                                               capsys):
+    text_plate(tmp_path / 'text.dxf')
+    job = tmp_path / 'text.yaml'
+    job.write_text(TEXT_JOB)
+    from ladrc_tools.cli import main
+
+    rc = main(['job', str(job)])
+    f = job_figures_of((rc, *capsys.readouterr()))
+    n = len(load_job(job).program().contours)
+    print(json.dumps({k: f[k] for k in ('job_time_s', 'pierces', 'locked_contours', 'contacts',
+                                        'faults', 'min_gap_over_target_cutting', 'wall_s')}))
+    assert f['finished'] and not f['aborted'] and f['faults'] == 0 and f['contacts'] == 0
+    assert f['pierces'] == n and len(f['min_true_gap_per_contour_mm']) == n
+    assert f['locked_contours'] > 20 and f['min_gap_over_target_cutting'] >= 0.7
+    # the same plate with every contour followed: the edge guard takes the voids around a
+    # letter's pierce for a sheet edge (the reading widens as at an edge): held, not followed
+    main(['job', str(job), '--off', 'small_contours'])
+    off = figures(capsys.readouterr()[0])
+    assert off['locked_contours'] == 0 and off['contacts'] == 0
+    assert off['faults'] >= 1 or off['holds']['void_lock']['count'] > 0, off
+
+
+def test_ladrc_job_cuts_the_shop_drawings_to_the_end_and_reports_what_it_read(tmp_path,
+                                                                           capsys):
+    from ladrc_tools.cli import main
+
+    jobs = [
+        (job_file(tmp_path, 'stray', stray_line_nest(tmp_path / 'stray.dxf'), w=150, h=70), 5),
+        (job_file(tmp_path, 'gaps', gapped_inch_plate(tmp_path / 'gaps.dxf'),
+                  'dxf_units: in\njoin_tolerance_mm: 0.5\n', w=130, h=90), 2),
+        (job_file(tmp_path, 'dup', duplicated_plate(tmp_path / 'dup.dxf'), w=100, h=80), 2),
+    ]
+    for job, n in jobs:
+        rc = main(['job', str(job)])
+        out, _ = capsys.readouterr()
+        f = job_figures_of((rc, out, ''))
+        print(json.dumps({k: f[k] for k in ('job', 'pierces', 'locked_contours', 'contacts',
+                                            'faults', 'drawing')}))
+        assert f['finished'] and f['faults'] == 0 and f['contacts'] == 0 and f['pierces'] == n
+        assert len(f['min_true_gap_per_contour_mm']) == n
+        if f['job'] == 'stray':  # the open line in the log and the figures
+            assert len(f['drawing']['open_contours']) == 1 and f['locked_contours'] == 1
+            assert 'open contour not cut: LINE #' in out.splitlines()[0]
+        if f['job'] == 'gaps':
+            assert f['drawing']['joins'] == 4
+            assert f['drawing']['largest_gap_closed_mm'] == pytest.approx(0.446, abs=1e-3)
+        if f['job'] == 'dup':
+            assert f['drawing']['duplicates_removed'] == 6
+    # the stray-line nest with the CNC apart from the world, as with the CNC node
+    rc = main(['job', str(jobs[0][0]), '--separate-cnc'])
+    f = job_figures_of((rc, *capsys.readouterr()))
+    assert f['finished'] and f['faults'] == 0 and f['contacts'] == 0 and f['pierces'] == 5
+    assert f['locked_contours'] == 1 and f['separate_cnc']
+
+
+def test_job_file_reading_keys_are_checked_in_one_line(tmp_path):
+    dxf = stray_line_nest(tmp_path / 'stray.dxf')
+    bad = job_file(tmp_path, 'bad', dxf, 'open_contours: mark_them\n')
+    with pytest.raises(JobError) as exc:
+        load_job(bad)
+    assert '\n' not in str(exc.value) and 'open_contours' in str(exc.value)
+    bad = job_file(tmp_path, 'bad2', dxf, 'join_tolerance_mm: 9\n')
+    with pytest.raises(JobError, match='join_tolerance_mm'):
+        load_job(bad)
+    refuse = job_file(tmp_path, 'refuse', dxf, 'open_contours: refuse\n')
+    with pytest.raises(JobError, match=r"LINE #\w+ on layer '0': a contour does not close"):
+        load_job(refuse).program()

@@ -67,7 +67,7 @@ def encode(name: str, args: dict[str, Any]) -> EventFields:
     if name == 'pierce':
         return EventFields(kind, float(a['cut_gap_mm']), text=json.dumps(
             {'heights_mm': list(a['heights_mm']), 'dwell_s': list(a['dwell_s']),
-             'thc_delay_s': a['thc_delay_s']}))
+             'thc_delay_s': a['thc_delay_s'], **({'locked': True} if a.get('locked') else {})}))
     if name == 'lift':
         return EventFields(kind, float(a['value_mm']), velocity_mm_s=float(a['velocity_mm_s']),
                            flag=bool(a['mode']))
@@ -103,7 +103,8 @@ def decode(ev: Any) -> tuple[str, dict[str, Any]]:
     if k == EventKind.PIERCE:
         d = json.loads(ev.text)
         return 'pierce', {'heights_mm': tuple(d['heights_mm']), 'dwell_s': tuple(d['dwell_s']),
-                          'cut_gap_mm': ev.value_mm, 'thc_delay_s': d['thc_delay_s']}
+                          'cut_gap_mm': ev.value_mm, 'thc_delay_s': d['thc_delay_s'],
+                          **({'locked': True} if d.get('locked') else {})}
     if k == EventKind.LIFT:
         return 'lift', {'mode': int(ev.flag), 'value_mm': ev.value_mm,
                         'velocity_mm_s': ev.velocity_mm_s}

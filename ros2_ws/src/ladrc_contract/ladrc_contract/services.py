@@ -30,7 +30,7 @@ FOLLOW_SERVICES: dict[str, tuple[str, str, dict[str, str]]] = {
     # the CNC interface (docs/interfaces.md, "CNC interface")
     'pierce': ('ladrc_msgs/srv/Pierce', 'follow/pierce',
                {'heights_mm': 'heights_mm', 'dwell_s': 'dwell_s', 'cut_gap_mm': 'cut_gap_mm',
-                'thc_delay_s': 'thc_delay_s'}),
+                'thc_delay_s': 'thc_delay_s', 'locked': 'locked'}),
     'lift': ('ladrc_msgs/srv/Lift', 'follow/lift',
              {'mode': 'mode', 'value_mm': 'value_mm', 'velocity_mm_s': 'velocity_mm_s'}),
     'hold': ('ladrc_msgs/srv/Hold', 'follow/hold',

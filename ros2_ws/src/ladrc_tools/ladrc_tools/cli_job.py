@@ -24,6 +24,8 @@ FEATURES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     'corner_lock': ({}, {'cnc.corner_lock': False}),
     'edge_ahead': ({}, {'cnc.edge_ahead_hold_mm': 0.0}),
     'leapfrog': ({'leapfrog': False}, {}),
+    # small contours pierced and cut followed like the others (no locked pierce)
+    'small_contours': ({'small_contour_mm': 0.0}, {}),
     'feed_override': ({'honour_override': False}, {}),
     # the void lock's two judgements at their widest (a jump of 20 mm, a fall of 10 m/s): the
     # edge guard's verification and the far drop stay
@@ -164,6 +166,10 @@ def _run_job(a: argparse.Namespace) -> int:
     out_dir = Path(a.output) if a.output else None
     if out_dir is not None and out_dir.exists():
         raise CliError(f'{out_dir} exists already: nothing is overwritten')
+    for o in (job.program().reading or {}).get('open_contours', ()):
+        (ax, ay), (bx, by) = o['ends_mm']
+        print(f'{job.name}: open contour not cut: {o["entity"]} on layer {o["layer"]!r}, ends '
+              f'({ax:g}, {ay:g}) and ({bx:g}, {by:g}) mm, {o["length_mm"]:g} mm long')
     result = run(job, a.off, record_internals=out_dir is not None,
                  progress=contour_progress(f'ladrc job {job.name}'), separate_cnc=a.separate_cnc)
     out: dict[str, Any] = {'job': job.name, 'off': a.off,

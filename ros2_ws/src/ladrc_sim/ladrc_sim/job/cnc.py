@@ -10,6 +10,9 @@ end, and the distance to the first void ahead under the nozzle: the outline, a h
 earlier kerf, which it computes from the job's sheet). A feed-hold request stops the XY feed
 while it lasts, and a feed-override request (adaptive feed) scales the cutting feed
 (``honour_override``); a FAULT of the controller aborts the job (the CNC stops and says why).
+A contour smaller than ``small_contour_mm`` is pierced locked (``pierce`` with ``locked``: its
+heights held by the encoder above the sheet level followed last, no capacitive following, as
+plasmac's hole sensing), once a contour of this follow was cut followed (a level exists).
 
 Plain Python; the same class runs headless (:mod:`.runner`) and behind the live CNC node.
 """
@@ -20,7 +23,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Any, Callable
 
-from ladrc_contract.codes import FollowState, Segment
+from ladrc_contract.codes import FollowState, Segment, SubState
 from ladrc_contract.tick import CncInput
 import numpy as np
 
@@ -29,6 +32,7 @@ from .motion import PathMotion
 RAPID, CUT, PIERCE, NONE = (int(Segment.RAPID), int(Segment.CUT), int(Segment.PIERCE),
                             int(Segment.NONE))
 FAULT = int(FollowState.FAULT)
+HOLD = int(SubState.HOLD)
 COMMANDS = ('leapfrog', 'lift', 'pierce', 'stop_follow')
 """The follow commands the CNC sends (ladrc_contract.services names)."""
 
@@ -51,6 +55,9 @@ class CncSettings:
     cycle_ticks: int = 2            # CNC cycle in controller ticks (2: 1 kHz)
     wait_timeout_s: float = 10.0    # a wait for the controller longer than this aborts the job
     honour_override: bool = True    # scale the cutting feed by the controller's request
+    small_contour_mm: float = -1.0  # a contour smaller (its largest extent) is pierced and cut
+    #                                 locked (no capacitive following); -1: the nozzle diameter
+    #                                 (the job resolves it from its sensor), 0: none
 
 
 @dataclass
@@ -58,6 +65,7 @@ class CncLog:
     """What the CNC did: pierce times, waits, feed holds, and why it stopped."""
 
     pierces: int = 0
+    locked: int = 0                 # contours pierced and cut locked (small contours)
     feed_hold_ticks: int = 0
     waits: list[tuple[str, float]] = field(default_factory=list)  # (what, seconds)
     aborted: str = ''
@@ -93,6 +101,8 @@ class Cnc:
         self._lift_target = start_xy
         self._lead_mm = 0.0
         self._ovr = 1.0            # the feed override of the cut (the controller's request)
+        self._followed_cut = False  # a contour was cut followed in this follow (a level exists)
+        self._locked = False       # the contour being pierced / cut is locked
 
     # ---- the sequence ------------------------------------------------------------------------
     def _cmd(self, name: str, **kw: Any) -> None:
@@ -204,10 +214,13 @@ class Cnc:
             self.x, self.y = self.move.step(hold)
             if self.move.done:
                 c = self.program.contours[self._k]
+                self._locked = self._followed_cut and c.size_mm < self.s.small_contour_mm
                 self._cmd('pierce', heights_mm=self.s.pierce_heights_mm,
                           dwell_s=self.s.pierce_dwell_s, cut_gap_mm=self.s.cut_gap_mm,
-                          thc_delay_s=self.s.thc_delay_s)
+                          thc_delay_s=self.s.thc_delay_s,
+                          **({'locked': True} if self._locked else {}))
                 self.log.pierces += 1
+                self.log.locked += self._locked
                 self._pierce_seen = False
                 self.segment, self.move = PIERCE, None
                 self.commanded_feed = 0.0
@@ -218,8 +231,10 @@ class Cnc:
             self._pierce_seen = self._pierce_seen or sub in (3, 4)  # (answers lag a tick)
             if self._pierce_seen and answers.get('in_position'):
                 self.beam = True  # the stage is in position: the beam pierces
-            if self._pierce_seen and answers.get('ready_to_move') and sub in (0, 4):
+            if self._pierce_seen and answers.get('ready_to_move') and (
+                    sub in (0, 4) or (self._locked and sub == HOLD)):
                 self._done_waiting('pierce')
+                self._followed_cut = self._followed_cut or not self._locked
                 self._start_cut()
             else:
                 self._waited('the pierce')

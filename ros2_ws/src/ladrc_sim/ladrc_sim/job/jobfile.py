@@ -9,7 +9,8 @@ overrides of the follow controller, ``name: value``), ``sensor`` (models/sensor.
 ``start_xy`` and ``start_height_mm``, ``dxf_origin_mm`` (where the drawing's (0, 0) lies on
 the sheet: the CNC's work offset), ``seed``, and ``limits`` (where the job's geometry makes
 the safety bar impossible: the bound that proves it, docs/job-world.md); how the DXF is read,
-declared once in :class:`DrawingKeys`: ``dxf_units`` and ``layers``. Every problem is one
+declared once in :class:`DrawingKeys`: ``dxf_units``, ``layers``, ``join_tolerance_mm`` and
+``open_contours``. Every problem is one
 line naming the file and the key (:class:`JobError`).
 
 ``gcode`` instead of ``dxf`` (relative to the job file): the job's program is a G-code file of
@@ -35,7 +36,14 @@ from ..models.axis import ParamError
 from ..models.sensor import SensorParams
 from ..models.sheet_xy import SurfaceParams
 from .cnc import CncSettings
-from .program import UNIT_MM, Program, ProgramError, load_program
+from .program import (
+    JOIN_TOLERANCE_MM,
+    OPEN_CONTOURS,
+    UNIT_MM,
+    Program,
+    ProgramError,
+    load_program,
+)
 
 
 class JobError(ValueError):
@@ -50,8 +58,14 @@ class DrawingKeys:
         None, '', "the drawing's units where the DXF does not say them (an R12 file, no "
         '$INSUNITS or $INSUNITS=0); where it does, they must agree', choices=tuple(UNIT_MM))
     layers: tuple[str, ...] = param(
-        (), '', 'the DXF layers read, by name, case-insensitive (empty: all); open contours '
-        'on any layer read are refused (there is no marking layer)')
+        (), '', 'the DXF layers read, by name, case-insensitive (empty: all)')
+    join_tolerance_mm: float = param(
+        JOIN_TOLERANCE_MM, 'mm', 'ends nearer than this are joined into one contour (the gap '
+        'closed by a straight step); entities shorter are dropped', gt=0.0, le=5.0)
+    open_contours: str = param(
+        'cut_closed', '', 'a chain that does not close within join_tolerance_mm: cut_closed '
+        '(every closed contour is cut, each open one listed in the log and the figures) or '
+        'refuse (the drawing is refused, naming the entity)', choices=OPEN_CONTOURS)
 
     @classmethod
     def read(cls, data: dict, path: Path) -> DrawingKeys:
@@ -71,7 +85,21 @@ class DrawingKeys:
         if not isinstance(layers, list) or any(
                 isinstance(x, (bool, dict, list)) or x is None or str(x) == '' for x in layers):
             raise JobError(f'{path}: layers: a list of DXF layer names, got {layers!r}')
-        return cls(dxf_units=units, layers=tuple(str(x) for x in layers))
+        values = {}
+        for key in ('join_tolerance_mm', 'open_contours'):
+            if key not in data:
+                continue
+            f = next(f for f in fields(cls) if f.name == key)
+            spec = f.metadata['spec']
+            kind = float if key == 'join_tolerance_mm' else str
+            v = data[key]
+            if kind is float and isinstance(v, int) and not isinstance(v, bool):
+                v = float(v)
+            bad = value_problems(key, kind, v, spec)
+            if bad:
+                raise JobError(f'{path}: {bad[0]}')
+            values[key] = v
+        return cls(dxf_units=units, layers=tuple(str(x) for x in layers), **values)
 
 
 @dataclass(frozen=True)
@@ -124,7 +152,10 @@ class Job:
                                    sheet_mm=(self.width_mm, self.height_mm),
                                    origin_mm=self.dxf_origin_mm,
                                    units=self.drawing.dxf_units,
-                                   layers=self.drawing.layers or None)
+                                   layers=self.drawing.layers or None,
+                                   join_tolerance_mm=self.drawing.join_tolerance_mm,
+                                   open_contours=self.drawing.open_contours,
+                                   small_contour_mm=self.cnc.small_contour_mm)
         except ProgramError as exc:
             raise JobError(f'{self.path}: {exc}') from None
         object.__setattr__(self, '_program', program)  # a frozen job: its program, once
@@ -263,15 +294,17 @@ def load_job(path: str | Path) -> Job:
     start = _xy(data, 'start_xy', path)
     origin = _xy(data, 'dxf_origin_mm', path)
     drawing = DrawingKeys.read(data, path)
+    sensor = _section(SensorParams, data.get('sensor'), f'{path}: sensor')
+    cnc = _section(CncSettings, data.get('cnc'), f'{path}: cnc')
+    if cnc.small_contour_mm < 0.0:  # the default: the nozzle face (the field beyond it)
+        cnc = replace(cnc, small_contour_mm=sensor.nozzle_diameter_mm)
     return Job(path=path, name=str(data['name']), description=str(data.get('description', '')),
                dxf=dxf, width_mm=float(w), height_mm=float(h),
                surface=_section(SurfaceParams, sheet.get('surface'), f'{path}: sheet.surface'),
                kerf_mm=float(kerf), lead_in_mm=float(cut.get('lead_in_mm', 3.0)),
                micro_joint_mm=float(cut.get('micro_joint_mm', 0.0)),
                micro_joints_per_part=int(cut.get('micro_joints_per_part', 0)),
-               cnc=_section(CncSettings, data.get('cnc'), f'{path}: cnc'),
-               controller=dict(controller),
-               sensor=_section(SensorParams, data.get('sensor'), f'{path}: sensor'),
+               cnc=cnc, controller=dict(controller), sensor=sensor,
                tip_parts=tuple(tips), tip_rise_mm=float(data.get('tip_rise_mm', 3.0)),
                start_xy=start, dxf_origin_mm=origin,
                start_height_mm=float(data.get('start_height_mm', 10.0)),

@@ -77,6 +77,40 @@ SHEET_MARGIN_MM = 5.0    # a pierce keeps the 8 mm nozzle face on the sheet, plu
 PIERCE_CLEAR_MM = 1.0    # a lead-in's distance to other parts beyond half a kerf (pierce crater)
 
 
+OPEN_CONTOURS = ('cut_closed', 'refuse')
+"""What the reader does with a chain that does not close (the job file's ``open_contours``)."""
+JOIN_TOLERANCE_MM = 0.5
+"""Ends nearer than this are joined (the job file's ``join_tolerance_mm``): sub-mm gaps."""
+
+
+@dataclass(frozen=True, eq=False)
+class Piece:
+    """An entity's flattened path (mm, on the sheet), its drawing order, layer and name."""
+
+    order: int
+    points: np.ndarray
+    layer: str
+    label: str                 # 'LINE #1F', or 'ARC of INSERT #2A (block 'P')'
+
+
+@dataclass(frozen=True, eq=False)
+class OpenChain:
+    """A chain of pieces that does not close within the join tolerance."""
+
+    label: str                 # its first entity in drawing order
+    layer: str
+    points: np.ndarray
+    order: int
+
+    def describe(self) -> dict:
+        """Return it for the log and the figures: entity, layer, ends, length."""
+        a, b = self.points[0], self.points[-1]
+        return {'entity': self.label, 'layer': self.layer,
+                'ends_mm': [[round(float(a[0]), 3), round(float(a[1]), 3)],
+                            [round(float(b[0]), 3), round(float(b[1]), 3)]],
+                'length_mm': round(_length(self.points), 3)}
+
+
 class ProgramError(ValueError):
     """A drawing cannot be a part program; one line naming the file and the problem."""
 
@@ -102,6 +136,12 @@ class Contour:
         """Return the contour's path length."""
         return _length(self.points_mm)
 
+    @property
+    def size_mm(self) -> float:
+        """Return the contour's largest extent (of its path's bounding box)."""
+        lo, hi = self.points_mm.min(axis=0), self.points_mm.max(axis=0)
+        return float(max(hi - lo))
+
 
 @dataclass(frozen=True, eq=False)
 class Program:
@@ -116,6 +156,7 @@ class Program:
     ignored: tuple[str, ...] = ()  # entity types in the modelspace not read (sorted)
     units_from: str = ''       # where the units come from: '$INSUNITS=4' or 'dxf_units'
     layers: tuple[str, ...] = ()  # the layers the contours were read from (sorted)
+    reading: dict | None = None  # what the reader joined, dropped and left open (figures)
 
 
 def _length(points: np.ndarray) -> float:
@@ -322,51 +363,112 @@ def _pieces(doc, scale: float, tol: float, name: str,
             raise ProgramError(f'{name}: {what} cannot be flattened: {text}') from None
         if len(pts) < 2:
             continue
+        label = (f'{kind} #{e.dxf.handle}' if m is None else f'{kind} of INSERT {where}')
         if len(pts) >= 4 and math.dist(pts[0], pts[-1]) <= tol:
             pts[-1] = pts[0]
-            closed.append((order, pts, layer))
+            closed.append(Piece(order, pts, layer, label))
         else:
-            open_.append((order, pts, layer))
+            open_.append(Piece(order, pts, layer, label))
     return closed, open_, sorted(ignored), found
 
 
-def _chain(pieces: list, tol: float, name: str) -> list:
-    """Join open pieces end to end into closed rings: [(drawing order, (n, 2), layer)]."""
-    rings = []
+def _clean(closed: list, open_: list, tol: float, same: float) -> tuple[list, list, int, int]:
+    """Return (closed, open) without the pieces shorter than ``tol`` and the duplicates.
+
+    Short: an open piece whose length, or a closed one whose extent, is below ``tol`` (a
+    drawing's dot or stub). Duplicate: a piece lying within ``same`` (the flattening's error,
+    twice) of another one that is at least as long (drawn twice, or over part of another); the
+    first drawn of two equal ones stays. Also returns how many were dropped as short and as
+    duplicates.
+    """
+    short = 0
+    keep = []
+    for piece in closed + open_:
+        ext = piece.points.max(axis=0) - piece.points.min(axis=0)
+        if (_length(piece.points) if piece not in closed else float(max(ext))) < tol:
+            short += 1
+        else:
+            keep.append(piece)
+    lines = [LineString(pc.points) if len(pc.points) > 1 else Point(pc.points[0]) for pc in keep]
+    lengths = [g.length for g in lines]
+    tree = shapely.STRtree(lines)
+    dropped: set[int] = set()
+    halo = {}
+    for i, g in enumerate(lines):
+        for j in tree.query(g, predicate='dwithin', distance=same):
+            j = int(j)
+            if j == i or j in dropped or i in dropped:
+                continue
+            # i lies over j (j at least as long; equal: the later drawn goes)
+            if lengths[j] < lengths[i] or (lengths[j] == lengths[i]
+                                           and keep[j].order > keep[i].order):
+                continue
+            if j not in halo:
+                halo[j] = lines[j].buffer(same, quad_segs=4)
+            if halo[j].covers(g):
+                dropped.add(i)
+                break
+    closed_ids = {id(pc) for pc in closed}
+    kept = [pc for k, pc in enumerate(keep) if k not in dropped]
+    return ([pc for pc in kept if id(pc) in closed_ids],
+            [pc for pc in kept if id(pc) not in closed_ids], short, len(dropped))
+
+
+def _chain(pieces: list, tol: float) -> tuple[list, list, int, float]:
+    """Join open pieces end to end into closed rings within ``tol``.
+
+    Return (rings as :class:`Piece`, the open chains as :class:`OpenChain`, the joins made
+    across a gap wider than 1e-6 mm, the widest gap closed). A gap is closed by a straight
+    step from one piece's end to the next one's start.
+    """
+    rings, opened = [], []
+    joins, widest = 0, 0.0
     n = len(pieces)
-    ends = np.array([(p[0], p[-1]) for _, p, _ in pieces], dtype=float).reshape(n, 2, 2)
+    ends = np.array([(pc.points[0], pc.points[-1]) for pc in pieces],
+                    dtype=float).reshape(n, 2, 2)
     free = np.ones(n, dtype=bool)
     for i in range(n):  # each chain from its first piece in drawing order
         if not free[i]:
             continue
         free[i] = False
-        chain, stuck = [pieces[i][1]], None
-        while len(chain) == 1 or math.dist(chain[0][0], chain[-1][-1]) > tol:
+        chain, turned, gaps, members = [pieces[i].points], False, [], [i]
+        closed = False
+        while True:
             tail = chain[-1][-1]
+            if len(chain) > 1 or len(chain[0]) >= 4:
+                gap = math.dist(chain[0][0], tail)
+                if gap <= tol and (len(chain) > 1 or gap > 1e-9):
+                    gaps.append(gap)
+                    closed = True
+                    break
             d = np.hypot(ends[:, :, 0] - tail[0], ends[:, :, 1] - tail[1])
             d[~free] = np.inf
             j, end = np.unravel_index(int(np.argmin(d)), d.shape)
             if d[j, end] <= tol:  # the nearest free end: either way round
                 free[j] = False
-                chain.append(pieces[j][1] if end == 0 else pieces[j][1][::-1])
+                members.append(int(j))
+                gaps.append(float(d[j, end]))
+                chain.append(pieces[j].points if end == 0 else pieces[j].points[::-1])
                 continue
-            if len(chain) == 1 and math.dist(chain[0][0], tail) <= tol:
-                break  # a single piece closing on itself (short: degenerate, dropped below)
-            if stuck is None:  # go on from the other end
-                stuck = tail
+            if not turned:  # go on from the other end
+                turned = True
                 chain = [p[::-1] for p in reversed(chain)]
                 continue
-            other = chain[-1][-1]
-            raise ProgramError(
-                f'{name}: a contour does not close: open end at ({stuck[0]:.3f}, '
-                f'{stuck[1]:.3f}) mm, its other end at ({other[0]:.3f}, {other[1]:.3f}) mm, '
-                f'{math.dist(stuck, other):.3f} mm apart (nothing else within {tol:g} mm), '
-                f'on layer {pieces[i][2]!r} (no marking layer: open contours are not cut; '
-                'layers: selects the layers read)')
-        ring = np.vstack([chain[0]] + [p[1:] for p in chain[1:]])
-        ring[-1] = ring[0]
-        rings.append((pieces[i][0], ring, pieces[i][2]))
-    return rings
+            break
+        first = pieces[min(members, key=lambda k: pieces[k].order)]
+        parts = [chain[0]] + [p[1:] if math.dist(p[0], q[-1]) <= 1e-9 else p
+                              for q, p in zip(chain[:-1], chain[1:], strict=True)]
+        path = np.vstack(parts)
+        if not closed:
+            opened.append(OpenChain(first.label, first.layer, path, first.order))
+            continue
+        joins += sum(1 for g in gaps if g > 1e-6)
+        widest = max([widest, *gaps])
+        if math.dist(path[0], path[-1]) <= 1e-9:
+            path = path[:-1]
+        ring = np.vstack((path, path[:1]))
+        rings.append(Piece(first.order, ring, first.layer, first.label))
+    return rings, opened, joins, widest
 
 
 def _polygon(ring: np.ndarray, name: str) -> Polygon | None:
@@ -435,9 +537,19 @@ def _start_at(ring: np.ndarray, k: int, point: np.ndarray) -> np.ndarray:
     return np.vstack((point, order, point))
 
 
-def _hole_lead(ring: np.ndarray, slug: Polygon, lead: float, tol: float) -> tuple:
-    """Return (ring from its start, lead-in) of a hole: from its pole to the nearest point."""
-    pole = np.asarray(polylabel(slug, tolerance=max(tol, 1e-3)).coords[0])
+def _hole_lead(ring: np.ndarray, slug: Polygon, lead: float, tol: float,
+               islands: Polygon | None = None) -> tuple:
+    """Return (ring from its start, lead-in) of a hole: from its pole to the nearest point.
+
+    ``islands``: what inside the hole is cut before it (parts in the hole, with a margin):
+    the pole is the material's, not theirs (the pierce over material, never a void).
+    """
+    material = slug
+    if islands is not None and not islands.is_empty:
+        left = _polygons(slug.difference(islands))
+        if left:
+            material = max(left, key=lambda g: g.area)
+    pole = np.asarray(polylabel(material, tolerance=max(tol, 1e-3)).coords[0])
     a, seg = ring[:-1], np.diff(ring, axis=0)
     ll = np.maximum(np.einsum('ij,ij->i', seg, seg), 1e-24)
     t = np.clip(np.einsum('ij,ij->i', pole - a, seg) / ll, 0.0, 1.0)
@@ -524,14 +636,31 @@ def _micro_joints(points: np.ndarray, n: int, gap: float) -> tuple[tuple[float, 
                   JOINT_FREE_MM + step * (i + 0.5) + gap / 2.0) for i in range(n))
 
 
-def _order(groups: list, enclosing: dict[int, int]) -> list[Contour]:
-    """Return the contours in cut order (module docstring) from (holes, outline) per part."""
+def _order(groups: list, enclosing: dict[int, int], small_mm: float = 0.0) -> list[Contour]:
+    """Return the contours in cut order (module docstring) from (holes, outline) per part.
+
+    Holes of ``small_mm`` or more first (nearest next), then the smaller ones: next the nearest
+    whose pierce point is ``small_mm / 2`` or more from every void cut so far, else the one
+    whose pierce point is farthest from them.
+    """
     here = np.zeros(2)
     left = set(range(len(groups)))
     out: list[Contour] = []
+    voids: list[Polygon] = []
 
     def dist(c: Contour) -> float:
         return math.dist(c.pierce_xy, here)
+
+    def pick(todo: list[Contour]) -> Contour:
+        big = [c for c in todo if c.size_mm >= small_mm]
+        if big or not voids:
+            return min(big or todo, key=dist)
+        gaps = [float(shapely.distance(Point(c.pierce_xy), shapely.union_all(voids[-64:])))
+                for c in todo]
+        clear = [c for c, g in zip(todo, gaps, strict=True) if g >= small_mm / 2.0]
+        if clear:
+            return min(clear, key=dist)
+        return todo[int(np.argmax(gaps))]
 
     while left:
         # a part whose hole holds parts not cut yet waits: the slug would take them along
@@ -542,11 +671,13 @@ def _order(groups: list, enclosing: dict[int, int]) -> list[Contour]:
         holes, outline = groups[k]
         todo = list(holes)
         while todo:
-            c = min(todo, key=dist)
+            c = pick(todo) if small_mm > 0.0 else min(todo, key=dist)
             todo.remove(c)
             out.append(c)
+            voids.append(c.region)
             here = c.points_mm[-1]
         out.append(outline)
+        voids.append(outline.region)
         here = outline.points_mm[-1]
     return out
 
@@ -557,18 +688,32 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
                  sheet_mm: tuple[float, float] | None = None,
                  origin_mm: tuple[float, float] = (0.0, 0.0),
                  units: str | None = None,
-                 layers: tuple[str, ...] | None = None) -> Program:
+                 layers: tuple[str, ...] | None = None,
+                 join_tolerance_mm: float = JOIN_TOLERANCE_MM,
+                 open_contours: str = 'cut_closed',
+                 small_contour_mm: float = 0.0) -> Program:
     """Read the DXF ``path`` and make its part program (module docstring).
 
     ``origin_mm``: where the drawing's (0, 0) lies on the sheet (the CNC's work offset).
     ``units``: the drawing's units where the file does not say (:data:`UNIT_MM`; the job
     file's ``dxf_units``). ``layers``: the layers read (None or empty: all).
+    ``join_tolerance_mm``: ends this near are joined, pieces shorter dropped, pieces lying
+    within it of a longer one dropped as duplicates. ``open_contours``: :data:`OPEN_CONTOURS`
+    (``cut_closed``: the closed ones cut, the open ones listed in ``Program.reading``;
+    ``refuse``: the first open one refused, naming its entity). ``small_contour_mm``: holes
+    smaller are cut after the others, their pierce points away from voids already cut
+    (0: nearest next only).
 
     Every bad input (arguments, file, drawing) raises :class:`ProgramError`, one line.
     """
     name = str(path)
     _check_arguments(name, kerf_mm, lead_in_mm, micro_joint_mm, micro_joints_per_part,
                      tolerance_mm, sheet_mm)
+    _number(name, 'join_tolerance_mm', join_tolerance_mm, 0.0, 5.0, open_low=True)
+    _number(name, 'small_contour_mm', small_contour_mm, 0.0, 1000.0)
+    if open_contours not in OPEN_CONTOURS:
+        raise ProgramError(f'{name}: open_contours {open_contours!r} is not one of '
+                           f'{" | ".join(OPEN_CONTOURS)}')
     doc = _read(path, name)
     units, scale, units_from = _units(doc, path, name, units)
     wanted = {str(x).casefold() for x in layers} if layers else None
@@ -579,7 +724,7 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
         if missing:
             raise ProgramError(f'{name}: layers: {", ".join(map(str, missing))} not in the '
                                f'drawing (its layers: {", ".join(sorted(found)) or "none"})')
-    drawn = [p for _, p, _ in closed + open_]
+    drawn = [pc.points for pc in closed + open_]
     if not drawn:
         on = f' on layers {", ".join(map(str, layers))}' if wanted is not None else ''
         raise ProgramError(f'{name}: nothing to cut{on}: no line, arc, circle, ellipse, spline '
@@ -593,11 +738,24 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
         sheet = f', the sheet {sheet_mm[0]:g} x {sheet_mm[1]:g} mm' if sheet_mm else ''
         raise ProgramError(f'{name}: units absurd for the sheet: the drawing is {w:.4g} x '
                            f'{h:.4g} mm read as {units} ({units_from}){sheet}')
-    join = max(tolerance_mm, 1e-6 * float(np.abs(every).max()))
-    rings = sorted(closed + _chain(open_, join, name), key=lambda r: r[0])
-    polys = [p for p in (_polygon(r, name) for _, r, _ in rings) if p is not None]
+    join = max(join_tolerance_mm, tolerance_mm, 1e-6 * float(np.abs(every).max()))
+    closed, open_, short, duplicates = _clean(closed, open_, join, 2.0 * tolerance_mm + 1e-6)
+    chained, opened, joins, widest = _chain(open_, join)
+    if opened and open_contours == 'refuse':
+        o = opened[0].describe()
+        (ax, ay), (bx, by) = o['ends_mm']
+        raise ProgramError(
+            f'{name}: {o["entity"]} on layer {o["layer"]!r}: a contour does not close: its ends '
+            f'({ax:.3f}, {ay:.3f}) and ({bx:.3f}, {by:.3f}) mm are '
+            f'{math.dist((ax, ay), (bx, by)):.3f} mm apart, no other end within {join:g} mm: '
+            'close it in the drawing, raise join_tolerance_mm, put it on a layer not read '
+            '(layers:) or set open_contours: cut_closed')
+    rings = sorted(closed + chained, key=lambda r: r.order)
+    polys = [p for p in (_polygon(r.points, name) for r in rings) if p is not None]
     if not polys:
-        raise ProgramError(f'{name}: no closed contour with an area in the drawing')
+        what = (f' ({len(opened)} open: {opened[0].label} on layer {opened[0].layer!r} first; '
+                f'join_tolerance_mm {join:g})' if opened else '')
+        raise ProgramError(f'{name}: no closed contour with an area in the drawing{what}')
     outlines, holes_of, enclosing = _nest(polys, name)
     parts = [Polygon(polys[j].exterior, [polys[h].exterior for h in holes_of[j]])
              for j in outlines]
@@ -613,12 +771,15 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
     groups = []
     for k, j in enumerate(outlines):
         holes = []
+        inside = [polys[q] for q, e in enclosing.items() if e == j]  # parts in its holes
         for h in holes_of[j]:
             slug = polys[h].buffer(-half, quad_segs=quad, join_style='round') if half else polys[h]
+            islands = shapely.union_all([q for q in inside if polys[h].contains(q)]).buffer(
+                half) if inside else None
             for piece in _polygons(slug):  # none: a hole within the kerf, the beam takes it all
                 ring = np.asarray(orient(Polygon(piece.exterior), sign=1.0).exterior.coords)
                 region = Polygon(ring)
-                pts, lead = _hole_lead(ring, region, lead_in_mm, tolerance_mm)
+                pts, lead = _hole_lead(ring, region, lead_in_mm, tolerance_mm, islands)
                 holes.append(Contour(_frozen(pts), True, k, _frozen(lead), region))
         outer = (Polygon(polys[j].exterior).buffer(half, quad_segs=quad, join_style='round')
                  if half else Polygon(polys[j].exterior))
@@ -628,12 +789,16 @@ def load_program(path: str | Path, *, kerf_mm: float, lead_in_mm: float = 3.0,
         region = Polygon(ring, [c.region.exterior.coords for c in holes])
         joints = _micro_joints(pts, micro_joints_per_part, micro_joint_mm)
         groups.append((holes, Contour(_frozen(pts), False, k, _frozen(lead), region, joints)))
-    order = _order(groups, {index[p]: index[q] for p, q in enclosing.items()})
+    order = _order(groups, {index[p]: index[q] for p, q in enclosing.items()}, small_contour_mm)
     if sheet_mm is not None:
         _check_on_sheet(order, sheet_mm, name)
     return Program(name, units, scale, tuple(order), tuple(parts),
                    (float(minx), float(miny), float(maxx), float(maxy)), tuple(ignored),
-                   units_from, tuple(sorted({layer for _, _, layer in rings})))
+                   units_from, tuple(sorted({r.layer for r in rings})),
+                   {'join_tolerance_mm': round(join, 6), 'joins': joins,
+                    'largest_gap_closed_mm': round(widest, 4),
+                    'duplicates_removed': duplicates, 'short_dropped': short,
+                    'open_contours': [o.describe() for o in opened]})
 
 
 def _check_on_sheet(contours: list[Contour], sheet_mm: tuple[float, float], name: str) -> None:

@@ -244,9 +244,11 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     if rows:
         internals = {k: np.array([r[k] for r in rows], dtype=object if isinstance(v, str)
                                  else None) for k, v in rows[0].items()}
-    return JobResult(job.name, series, job_figures(series, h, cnc.log, len(program.contours),
-                                                   lock_ratio), cnc.log, wall, events, internals,
-                     job.sensor)
+    figures = job_figures(series, h, cnc.log, len(program.contours), lock_ratio)
+    figures['locked_contours'] = getattr(cnc.log, 'locked', 0)
+    if program.reading is not None:
+        figures['drawing'] = program.reading
+    return JobResult(job.name, series, figures, cnc.log, wall, events, internals, job.sensor)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -22,6 +22,11 @@ change of the target. The anchors (plasmac ``plasmac.comp``, Beckhoff TF5200/TF5
   gone: the head is lifted by ``stale_lift_mm`` (a planned move up) and held there;
 * pierce: each stage height approached, in position, dwelled at; then the cut gap, in position,
   and the THC delay (held) before the follow closes in (plasmac pierce delay / THC delay);
+* a locked pierce (a contour smaller than the sensor's field, the CNC's call: plasmac's hole
+  sensing, a laser control's "no follow for small contours"): the stages and the cut gap are
+  heights above the sheet level followed last (encoder − gap), reached and held by the encoder,
+  no capacitive following, until the CNC's next command; a valid reading nearer than planned
+  (a sheet higher there) raises the level, never lowers it (:class:`_Locked`);
 * a CNC that moves XY before the pierce is complete is asked to hold its feed, with the reason;
 * adaptive feed: while cutting and followed, a gap more than ``feed_override_error`` x the
   target below the target asks for less feed (``feed_override_request``), down to
@@ -118,6 +123,16 @@ class CncPartner:
         self._inpos = 0
         return self._stages[0][0]
 
+    def start_locked(self, level_mm: float, heights_mm, dwell_s, cut_gap_mm: float,
+                     thc_delay_s: float) -> None:
+        """Start a locked pierce over the sheet level ``level_mm`` (encoder coordinate)."""
+        h = self._h
+        stages = [(float(z), int(round(t / h))) for z, t in zip(heights_mm, dwell_s, strict=True)]
+        stages.append((float(cut_gap_mm), int(round(thc_delay_s / h))))
+        self._start_move(_Locked(level_mm, stages, h, self.p.leapfrog_settle_s,
+                                 min(self._leap_v, self._v_cap), self._tol, self._hold_ticks),
+                         SUB_PIERCE)
+
     def start_lift(self, distance_mm: float, velocity_mm_s: float, u_mm_s: float) -> None:
         """Lift by ``distance_mm`` (> 0) at ``velocity_mm_s`` from the applied command."""
         v = min(velocity_mm_s if velocity_mm_s > 0.0 else self.p.lift_velocity_mm_s, self._v_cap)
@@ -145,9 +160,14 @@ class CncPartner:
 
         ``gap_mm``: a valid reading, NaN when there is none (a rapid over a hole).
         """
+        move = self._move
+        if isinstance(move, _Locked):
+            v = move.velocity(enc_mm, gap_mm)
+            self.sub, self.reason = move.sub, move.reason
+            self.in_position, self.ready_to_move = move.in_position, move.ready
+            return v
         what = 'lift' if self._move_sub == SUB_LIFT else 'leapfrog'
         self.sub = self._move_sub
-        move = self._move
         v = move.velocity(enc_mm, gap_mm)  # a leapfrog holds its arrival level; a lift 0
         if not move.done:
             self.reason = f'{what}: moving'
@@ -396,3 +416,60 @@ class _Lift:
         v = max(self._it.step(), 0.0)
         self.done = self._it.is_finished()
         return v
+
+
+class _Locked:
+    """A locked pierce and cut: heights above a sheet level held by the encoder, never the law.
+
+    ``stages``: (height above the level, dwell ticks), the last one the cut gap (its dwell: the
+    THC delay). Each height is approached as an exponential of time constant ``settle_s``
+    (toward the sheet never faster than the distance left over it, as the leapfrog's final
+    approach), capped at ``v_mm_s``; in position within ``tol_mm`` for ``hold_ticks``; then its
+    dwell. Once at the cut gap it holds there (``SUB_HOLD``, ready to move) until the CNC's next
+    command ends it. A valid reading below the height planned at the encoder's position (the
+    sheet nearer than the level says) raises the level to ``encoder − reading``; it is never
+    lowered (a reading over voids reads wider, never nearer).
+    """
+
+    def __init__(self, level_mm: float, stages: list[tuple[float, int]], h_s: float,
+                 settle_s: float, v_mm_s: float, tol_mm: float, hold_ticks: int) -> None:
+        self.level_mm = level_mm
+        self._stages = stages
+        self._k = 0
+        self._count = -1           # dwell ticks left; -1: approaching
+        self._inpos = 0
+        self._settle, self._v, self._tol, self._hold = settle_s, v_mm_s, tol_mm, hold_ticks
+        self.sub, self.reason = SUB_PIERCE, ''
+        self.in_position = self.ready = False
+        self.done = False          # (a planned move's flag: never ends by itself)
+
+    def velocity(self, enc_mm: float, gap_mm: float) -> float:
+        """Return this tick's command; ``gap_mm``: a valid reading, else NaN."""
+        if gap_mm < enc_mm - self.level_mm:  # (False for NaN) the sheet nearer: level up
+            self.level_mm = enc_mm - gap_mm
+        n = len(self._stages) - 1
+        height, dwell = self._stages[self._k]
+        z = self.level_mm + height
+        err = z - enc_mm
+        u = min(max(err / self._settle, -self._v), self._v)
+        self._inpos = self._inpos + 1 if abs(err) <= self._tol else 0
+        at = self._inpos >= self._hold
+        last = self._k == n
+        if self._count < 0 and at:
+            self._count = dwell
+        if self._count == 0 and not last:
+            self._k, self._count, self._inpos = self._k + 1, -1, 0
+        elif self._count > 0:
+            self._count -= 1
+        stage = f'stage {self._k + 1}/{n}' if self._k < n else 'cut gap'
+        self.in_position = self._count >= 0
+        self.ready = last and self._count == 0
+        if self.ready:
+            self.sub = SUB_HOLD
+            self.reason = (f'height locked: {height:g} mm above the sheet level followed last '
+                           f'({self.level_mm:.3f} mm, encoder), no capacitive following')
+        else:
+            self.sub = SUB_PIERCE
+            self.reason = (f'locked pierce {stage}: {height:g} mm above the level followed '
+                           f'last, by the encoder' + (', dwell' if self._count > 0 else ''))
+        return u

@@ -41,6 +41,7 @@ class CommandView(NamedTuple):
     retracting: bool
     drive_bad: bool
     pending: list         # queued (name, kwargs)
+    level_mm: float = math.nan  # the sheet level followed last (a locked pierce's), NaN: none
 
 
 Check = Callable[[CommandView, dict], tuple[str, str, dict]]
@@ -236,7 +237,7 @@ LIFT_TO_HEIGHT, LIFT_BY_DISTANCE = 0, 1
 
 
 def _check_pierce(view: CommandView, kw: dict) -> tuple[str, str, dict]:
-    missing = [a for a in TABLE['pierce'].args if a not in kw]
+    missing = [a for a in TABLE['pierce'].args if a not in kw and a != 'locked']
     if missing:
         return f'pierce: missing {", ".join(missing)}', '', kw
     try:
@@ -259,20 +260,34 @@ def _check_pierce(view: CommandView, kw: dict) -> tuple[str, str, dict]:
         return why, '', kw
     if view.state == FAULT:
         return f'pierce: in FAULT ({view.fault_reason}); reset_fault first', '', kw
+    locked = kw.get('locked', False)
+    if locked not in (True, False):
+        return f'pierce: locked must be true or false, got {locked!r}', '', kw
+    if locked and (view.state not in (PID, LADRC) or view.level_mm != view.level_mm):
+        return ('pierce: locked: no sheet level followed yet in this follow (a locked pierce '
+                f'holds heights above it; {FollowState(view.state).name}): pierce unlocked '
+                'first'), '', kw
     kw = {'heights_mm': tuple(float(z) for z in heights),
           'dwell_s': tuple(float(t) for t in dwell),
-          'cut_gap_mm': float(kw['cut_gap_mm']), 'thc_delay_s': float(kw['thc_delay_s'])}
+          'cut_gap_mm': float(kw['cut_gap_mm']), 'thc_delay_s': float(kw['thc_delay_s']),
+          **({'locked': True} if locked else {})}
     stages = ', '.join(f'{z:g} mm {t:g} s' for z, t in zip(kw['heights_mm'], kw['dwell_s'],
                                                                 strict=True))
     return '', (f'pierce: {stages}; then {kw["cut_gap_mm"]:g} mm, THC delay '
                 f'{kw["thc_delay_s"]:g} s' + (' (follow starts)' if view.state == IDLE else '')
-                ), kw
+                + (' locked: heights above the sheet level followed last, by the encoder'
+                   if locked else '')), kw
 
 
 def _apply_pierce(c, st: int, kw: dict) -> None:
     if st == FAULT:
         return
     c._end_lift()  # (first: the approach then starts from where the axis is)
+    if kw.get('locked'):
+        if st in (PID, LADRC) and c._level == c._level:
+            c._partner.start_locked(c._level, kw['heights_mm'], kw['dwell_s'],
+                                    kw['cut_gap_mm'], kw['thc_delay_s'])
+        return
     first = c._partner.start_pierce(kw['heights_mm'], kw['dwell_s'], kw['cut_gap_mm'],
                                     kw['thc_delay_s'])
     if st == IDLE:
@@ -404,8 +419,8 @@ TABLE: dict[str, Command] = {
     'reset_fault': Command((), _check_reset, _apply_reset),
     'target_wave': Command(('kind', 'amp_mm', 'freq_hz', 'freq_end_hz', 'duration_s'),
                            _check_wave, _apply_wave),
-    'pierce': Command(('heights_mm', 'dwell_s', 'cut_gap_mm', 'thc_delay_s'), _check_pierce,
-                      _apply_pierce),
+    'pierce': Command(('heights_mm', 'dwell_s', 'cut_gap_mm', 'thc_delay_s', 'locked'),
+                      _check_pierce, _apply_pierce),
     'lift': Command(('mode', 'value_mm', 'velocity_mm_s'), _check_lift, _apply_lift),
     'hold': Command(('hold', 'at_next_segment', 'reason'), _check_hold, _apply_hold),
     'leapfrog': Command(('lift_mm', 'rapid_length_mm', 'rapid_feed_mm_s', 'arrive_height_mm'),

@@ -149,6 +149,7 @@ class FollowController:
         self._retract: Interpolator | None = None
         self._last_gap = math.nan
         self._last_enc = math.nan
+        self._level = math.nan  # sheet level (encoder − gap) at the last followed, unheld tick
         self._drive_bad = False
         self._lock_ticks = 0
         self._lock_ok = False
@@ -304,7 +305,7 @@ class FollowController:
                            f'(allowed: {", ".join(entry.args) or "none"})')
         view = CommandView(projected_state(self._state, self._pending), self.follow_params,
                            self.params, self._target, self._offset, self._fault_reason,
-                           self._retracting, self._drive_bad, self._pending)
+                           self._retracting, self._drive_bad, self._pending, self._level)
         why, message, kwargs = entry.check(view, kwargs)
         if why:
             return False, why
@@ -329,6 +330,7 @@ class FollowController:
         self._limiter.uncap()
         self._partner.stop()
         self._reapproach = False
+        self._level = math.nan
 
     def _end_lift(self) -> None:
         """End a lift or a leapfrog: the next usable reading starts an approach from there."""
@@ -591,6 +593,8 @@ class FollowController:
         why = self._guard.far_drop(enc, gap)
         if why:  # held as an edge from this tick (edge.py): nothing further down
             self._edge_hold(why, gap)
+        elif self._followed and not self._partner.holding and self._override != self._override:
+            self._level = enc - gap  # a locked pierce's level (CncPartner.start_locked)
         return LAW[self._state](self, gap, enc, self._law_target(gap), prev_gap, prev_enc)
 
     def _edge_verdict(self, gap: float, enc: float) -> float | None:
