@@ -132,6 +132,7 @@ def test_linuxcncs_interpreter_reads_the_sheetcam_program_to_its_end(tmp_path):
     program.write_text(filtered(SHEETCAM.read_text()), encoding='utf-8')
     read = interpret(program, tmp_path)
     assert read['result'] <= read['min_error'], read['error']
+    assert read['cut_requests'] == len(TOUCHOFF_LINES) == 3  # one per touchoff (M03 S1: none)
     lines = SHEETCAM.read_text().splitlines()
     moves = read['moves']
     at = {m[1]: m for m in moves}

@@ -132,7 +132,7 @@ def check_program(path: Path, program: Path, initcode: str, status: Status) -> N
         return
     ok = result['result'] <= result['min_error']
     status('check', program=str(program), checked=True, ok=ok, moves=len(result['moves']),
-           seconds=round(time.monotonic() - t0, 3))
+           cut_requests=result.get('cut_requests'), seconds=round(time.monotonic() - t0, 3))
     if not ok:
         raise ProgramError(result['error_text'].replace(str(path), str(program)),
                            int(result['line']), 'open')

@@ -4,10 +4,11 @@
 ``gcode_path.py FILE [INITCODE]`` parses FILE with LinuxCNC's ``gcode`` module (the rs274ngc
 interpreter AXIS previews with; nothing of ours parses G-code) and prints one JSON object:
 ``result`` (the interpreter's code; above ``min_error``: an error), ``error`` (its text and
-line; ``error_text`` and ``line`` apart), ``moves``: ``[kind, line, x_mm, y_mm, feed_mm_min,
-spindle]`` per canonical move in program order (``kind``: ``G0``, ``G1``, ``ARC``; ``spindle``:
-the M code of the spindle's modal group, 3, 4 or 5) and for an arc its centre and turn
-(``cx_mm``, ``cy_mm``, ``turn``).
+line; ``error_text`` and ``line`` apart), ``cut_requests`` (how many times the moves go from
+the spindle off to M3: the program's cut requests), ``moves``: ``[kind, line, x_mm, y_mm,
+feed_mm_min, spindle]`` per canonical move in program order (``kind``: ``G0``, ``G1``,
+``ARC``; ``spindle``: the M code of the spindle's modal group, 3, 4 or 5) and for an arc its
+centre and turn (``cx_mm``, ``cy_mm``, ``turn``).
 
 The interpreter reads tool data from LinuxCNC's shared memory: a program with T words needs
 a running LinuxCNC (``INI_FILE_NAME`` its INI); without one it may crash (the caller reports
@@ -96,9 +97,12 @@ def main(argv: list[str]) -> int:
     if result > gcode.MIN_ERROR:
         text = gcode.strerror(result)
         error = f'{text} (line {seq})'
+    spindle = [m[5] for m in canon.moves]
+    cut_requests = sum(1 for a, b in zip([5, *spindle], spindle, strict=False)
+                       if b == 3 and a != 3)
     print(json.dumps({'result': int(result), 'min_error': int(gcode.MIN_ERROR),
                       'error': error, 'error_text': text, 'line': int(seq),
-                      'moves': canon.moves}))
+                      'cut_requests': cut_requests, 'moves': canon.moves}))
     return 0
 
 

@@ -11,6 +11,17 @@ node has written the job's figures; the last line of output is them, with LinuxC
 (``linuxcnc``: the program, the filter's log, the display's events, the bridge's log) and the
 allowance the run had.
 
+**A run that fails says so.** LinuxCNC refusing the program (its interpreter reads it to its
+end before the open: an undefined subroutine, a refused ``o<touchoff>`` value) or stopping it
+(an error while it runs: the display aborts it, the bridge ends the job) ends the run: one line
+on stderr (``bringup: LinuxCNC ...: TEXT (line N of FILE)``), the figures' ``finished`` false,
+``aborted`` and ``linuxcnc.program_error`` (text, line, when, seconds after the open or the
+cycle start) saying it, exit 1. A program that cut nothing (0 pierces) is not finished either
+(the bridge's rule): one line, exit 1.
+
+A G-code job's ``dxf_origin_mm`` (where its program's (0, 0) lies on the sheet) is LinuxCNC's
+G54 work offset; a post-processed program is written in the sheet's coordinates (offset 0).
+
 Order: LinuxCNC first (homed, the program open: it waits for the height controller's
 ``ladrc.height-ready`` before cycle start), then the nodes; at the end the follow node first
 (zero command), the sim, the recorder, the bridge, then LinuxCNC (by PID, its shared memory
@@ -68,6 +79,8 @@ target at the warped corner); at these priorities 18-20 ms (0.70-0.72). With the
 and follow node, about 0.55-0.6 of a core each) the real-time load stays below the kernel's
 budget (95 % of each CPU, ``sched_rt_runtime_us``), past which it stops every real-time thread
 for up to 50 ms (``RT throttling activated``)."""
+PROGRAM_ERROR_END_S = 10.0
+"""After LinuxCNC stopped the program, the run waits this long at most for the nodes' end."""
 FAULT_SETTLE_S = 4.0
 """After a killed bridge, the run goes on this long (LinuxCNC holds, the controller holds)."""
 BRIDGE_KEYS = ('pierce_heights_mm', 'pierce_dwell_s', 'cut_gap_mm', 'thc_delay_s', 'lift_mm',
@@ -288,7 +301,9 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
         print(f'bringup: {exc}', file=sys.stderr)
         return 2
     ini = render_run_config(folder / 'run', RunSettings(
-        program=program, home_xy_mm=job.start_xy, rapid_mm_s=job.cnc.rapid_mm_s,
+        program=program, home_xy_mm=job.start_xy,
+        work_offset_mm=job.dxf_origin_mm if job.gcode is not None else (0.0, 0.0),
+        rapid_mm_s=job.cnc.rapid_mm_s,
         accel_mm_s2=job.cnc.accel_mm_s2, component_priority=COMPONENT_PRIORITY,
         servo_priority=SERVO_PRIORITY,
         extra=({('LADRC', 'LINK_TIMEOUT_S'): allowance['linuxcnc']['link_timeout_s']}
@@ -342,8 +357,13 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
                 break
             if end_at is not None and time.monotonic() > end_at:
                 break
-            if t_run is None and any(e.get('event') == 'run' for e in lc.events()):
+            events = lc.events()
+            if t_run is None and any(e.get('event') == 'run' for e in events):
                 t_run = time.monotonic()
+            if end_at is None and any(e.get('event') == 'error' for e in events):
+                # LinuxCNC stopped the program: the bridge ends the job (aborted), the sim
+                # follows; this bounds the wait for them
+                end_at = time.monotonic() + PROGRAM_ERROR_END_S
             if fault and not fault_done and t_run is not None \
                     and time.monotonic() - t_run >= fault[1]:
                 fault_done = True
@@ -373,6 +393,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
     figures = job_figures(figures_file)
     bridge = last_json(log_dir / 'ladrc_bridge.log')
     events = lc.events()
+    failed = program_error(events)
     linuxcnc = {
         'program': program_info,
         'filter': next((e.get('log') for e in events if e.get('event') == 'filter'), None),
@@ -385,17 +406,66 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
         'servo_threads': lc.servo_threads,
         'cpu_share': cpu,
         **({'error': error} if error else {}),
+        **({'program_error': failed} if failed else {}),
     }
     if fault_report:
         linuxcnc['fault'] = fault_report
     if keep is None:
         shutil.rmtree(folder, ignore_errors=True)
+    verdict = ''
+    if failed:
+        verdict = (f'LinuxCNC {"refused" if failed["when"] == "open" else "stopped"} the '
+                   f'program: {failed["text"]} (line {failed["line"]} of {failed["program"]})')
+        figures.update(finished=False, aborted=verdict)
+    elif figures.get('finished') and early_end(events, bridge):
+        verdict = early_end(events, bridge)
+        figures.update(finished=False, aborted=verdict)
+    elif not error and not bridge.get('pierces', figures.get('pierces')):
+        verdict = ('the run cut nothing: 0 pierces ('
+                   f'{bridge.get("aborted") or figures.get("aborted") or "no figures"})')
+        figures['finished'] = False
+    elif error:
+        verdict = f'LinuxCNC: {error}' if not error.startswith('LinuxCNC') else error
+    if verdict:
+        print(f'bringup: {" ".join(verdict.split())}', file=sys.stderr)
     print(json.dumps({'bag': args.bag, 'exit_codes': codes, 'job': job.name, 'cnc': 'linuxcnc',
                       'allowance': allowance,
                       **figures, 'linuxcnc': linuxcnc}, default=str))
-    ok = not error and all(c in (0, -2, 130) for n, c in codes.items()
-                           if not (fault and n == 'ladrc_bridge'))
+    ok = not verdict and all(c in (0, -2, 130) for n, c in codes.items()
+                             if not (fault and n == 'ladrc_bridge'))
     return 0 if ok else 1
+
+
+def early_end(events: list[dict[str, Any]], bridge: dict[str, Any]) -> str:
+    """Return why a run that looks finished did not run its program to its end ('' if it did).
+
+    LinuxCNC's interpreter counted the program's cut requests before the run (the display's
+    ``check``); the bridge pierced fewer: the program went idle before its end.
+    """
+    check = next((e for e in events if e.get('event') == 'check'), {})
+    expected, pierced = check.get('cut_requests'), bridge.get('pierces')
+    if not isinstance(expected, int) or not isinstance(pierced, int) or pierced >= expected:
+        return ''
+    idle = next((e for e in events if e.get('event') == 'idle'), {})
+    return (f'LinuxCNC ended the program before its end: {pierced} of its {expected} cut '
+            f'requests reached (motion at line {idle.get("line", "?")} when it went idle)')
+
+
+def program_error(events: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """Return LinuxCNC's refusal or stop of the program from the display's events, or None.
+
+    ``text``, ``line`` (of the program's file), ``when`` (``open``: its interpreter refused the
+    program before the run; ``run``), ``program``, and ``after_s``: seconds from the program's
+    filter (open) or the cycle start (run) to the display's error line.
+    """
+    err = next((e for e in events if e.get('event') == 'error' and 'line' in e), None)
+    if err is None:
+        return None
+    ref = next((e for e in events if e.get('event') == ('run' if err.get('when') == 'run'
+                                                         else 'filter')), None)
+    return {'text': err.get('program_error', err.get('text', '')), 'line': err.get('line'),
+            'when': err.get('when', ''), 'program': err.get('program', ''),
+            'after_s': round(float(err['t']) - float(ref['t']), 3) if ref else None}
 
 
 def _comm(pid: int) -> str:
