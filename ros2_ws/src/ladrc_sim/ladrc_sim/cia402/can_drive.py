@@ -325,8 +325,12 @@ class CanDrive:
                 entries = []
                 for s in range(1, _raw(node, mp + k, 0) + 1):
                     index, sub, bits = mapping.decode_entry(_raw(node, mp + k, s))
+                    if index not in od:
+                        break  # a mapping of no object of this node: not a valid PDO
                     obj = od[index]
                     if not isinstance(obj, canopen.objectdictionary.ODVariable):
+                        if sub not in obj:
+                            break
                         obj = obj[sub]
                     signed = obj.data_type in (canopen.objectdictionary.INTEGER8,
                                                canopen.objectdictionary.INTEGER16,
@@ -336,6 +340,8 @@ class CanDrive:
                     if role == 'velocity_actual':
                         signed = self.roles[role].signed  # the device file's reading of it
                     entries.append(mapping.Entry(index, sub, bits, signed, role))
+                if len(entries) != _raw(node, mp + k, 0):
+                    continue
                 if comm == mapping.RPDO_COMM:
                     out.append((cob & 0x7FF, tuple(entries)))
                     if k == 0 and drive:
