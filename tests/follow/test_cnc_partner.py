@@ -273,7 +273,7 @@ def test_without_a_cnc_in_position_follows_followed():
 # ------------------------------------------------------------------------------ contract
 @pytest.mark.parametrize('name, kwargs', [
     ('pierce', dict(heights_mm=(3.0, 2.0), dwell_s=(0.2, 0.1), cut_gap_mm=1.0,
-                    thc_delay_s=0.1)),
+                    thc_delay_s=0.1, locked=False)),
     ('lift', dict(mode=1, value_mm=4.0, velocity_mm_s=20.0)),
     ('hold', dict(hold=True, at_next_segment=True, reason='part drops out')),
     ('hold', dict(hold=False, at_next_segment=False, reason='')),

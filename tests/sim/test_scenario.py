@@ -69,7 +69,7 @@ def test_defaults_and_event_sorting():
         {'t_s': 0.0, 'do': 'pierce', 'heights_mm': [3, 2.5], 'dwell_s': [0.1, 0.1],
          'cut_gap_mm': 1}]})
     assert pierce.timeline[0].args == {'heights_mm': (3.0, 2.5), 'dwell_s': (0.1, 0.1),
-                                       'cut_gap_mm': 1.0, 'thc_delay_s': 0.0}
+                                       'cut_gap_mm': 1.0, 'thc_delay_s': 0.0, 'locked': False}
     with pytest.raises(ScenarioError, match='heights_mm: expected a list of numbers'):
         scenario_from_dict({'name': 'p', 'duration_s': 1, 'timeline': [
             {'t_s': 0.0, 'do': 'pierce', 'heights_mm': 3, 'dwell_s': [0.1], 'cut_gap_mm': 1}]})

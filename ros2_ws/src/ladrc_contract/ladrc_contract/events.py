@@ -104,7 +104,7 @@ def decode(ev: Any) -> tuple[str, dict[str, Any]]:
         d = json.loads(ev.text)
         return 'pierce', {'heights_mm': tuple(d['heights_mm']), 'dwell_s': tuple(d['dwell_s']),
                           'cut_gap_mm': ev.value_mm, 'thc_delay_s': d['thc_delay_s'],
-                          **({'locked': True} if d.get('locked') else {})}
+                          'locked': bool(d.get('locked', False))}  # (older bags: unlocked)
     if k == EventKind.LIFT:
         return 'lift', {'mode': int(ev.flag), 'value_mm': ev.value_mm,
                         'velocity_mm_s': ev.velocity_mm_s}

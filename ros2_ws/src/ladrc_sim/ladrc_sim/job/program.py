@@ -13,16 +13,21 @@ All lengths are millimetres once ``$INSUNITS`` has scaled the drawing.
   entity's path before it is flattened. An entity on layer ``0`` in a block is on the layer of
   its INSERT (the CAD rule).
 * **Layers**: ``layers`` (default all) selects the layers read, by name, case-insensitive; a
-  layer named that carries no entity is refused, naming the drawing's layers. There is no
-  marking (open-contour) layer: an open contour on any layer read is refused, as below.
+  layer named that carries no entity is refused, naming the drawing's layers.
 * **Units**: ``$INSUNITS`` as the file writes it (read from the file's own tags: ezdxf fills a
   default, metres, into a drawing without a HEADER section, as R12 files from laser CAMs are),
   else ``units`` (the job file's ``dxf_units``); the file's and ``units`` disagreeing, neither
   saying, or a unit not in :data:`UNIT_MM` is refused, one line naming what the file says and
   does not say. A drawing whose size is absurd for the sheet is refused.
-* **Chaining**: open pieces are joined end to end, either way round, where their ends meet
-  within ``max(tolerance_mm, 1e-6 x the drawing's size)``; a chain that does not close is
-  refused, naming its open ends. Contours of less than 1e-6 mm² are dropped.
+* **Cleaning**: pieces shorter than the join tolerance are dropped; a piece within twice the
+  chord tolerance of one at least as long (drawn twice, or over part of it) is dropped as a
+  duplicate; both counted in ``Program.reading``.
+* **Chaining** (the reader's own: ezdxf's edgeminer needs ezdxf 1.4, the noble profile has
+  1.1.3): open pieces are joined end to end, either way round, where their ends meet within
+  ``max(join_tolerance_mm, tolerance_mm, 1e-6 x the drawing's size)``, a gap closed by a
+  straight step (the joins and the widest gap in ``Program.reading``); a chain that does not
+  close is listed there (``open_contours: cut_closed``) or refused naming its first entity
+  (``refuse``). Contours of less than 1e-6 mm² are dropped.
 * **Nesting**: a contour inside an odd number of others is a hole of the smallest one around
   it; the others are parts (a part in another part's hole is a part of its own). Contours that
   cross each other are refused; a contour drawn twice over itself is cut once.
@@ -31,14 +36,17 @@ All lengths are millimetres once ``$INSUNITS`` has scaled the drawing.
   path runs half a kerf into the scrap, outside a part's outline and inside a hole: the
   compensation to the left of the travel (G41 on a control that compensates itself).
 * **Lead-ins**, straight, from the scrap: into a hole from its pole (the centre of its largest
-  inscribed circle) to the nearest point of its path, perpendicular to it, shortened to fit a
-  small hole; onto an outline along the outward normal at the middle of its longest edge whose
-  lead-in clears the other parts (and keeps the nozzle on the sheet, when the sheet is given).
+  inscribed circle, beside the parts inside it and their kerf) to the nearest point of its
+  path, perpendicular to it, shortened to fit a small hole; onto an outline along the outward
+  normal at the middle of its longest edge whose lead-in clears the other parts (and keeps the
+  nozzle on the sheet, when the sheet is given).
 * **Micro-joints** (optional): beam-off gaps spread evenly along each outline, none in its first
   2 mm.
 * **Order**: a part's holes before its outline; parts nearest next from the origin, by the
-  pierce point of the contour each would cut first; holes nearest next within a part; a part
-  in another part's hole before that part.
+  pierce point of the contour each would cut first; holes nearest next within a part (with
+  ``small_contour_mm``: the smaller holes after the others, each next the nearest whose pierce
+  point is half of it from the voids cut so far, else the farthest); a part in another part's
+  hole before that part.
 
 ``Program.parts`` are in drawing order (of each outline's first entity in the modelspace).
 """
