@@ -97,3 +97,23 @@ def test_an_undefined_subroutine_ends_the_run_with_linuxcncs_error_and_line(tmp_
     assert f['exit_codes'] == {} and f['linuxcnc']['bridge'] == {}  # no node ran, nothing cut
     last = [ln for ln in err.splitlines() if ln.startswith('bringup: ')][-1]
     assert str(program) in last and 'line 7 ' in last  # one line: the program and its line
+
+
+def test_a_program_that_cuts_nothing_is_not_finished(tmp_path, ros_env):
+    """Rapids only, no M3 and no touchoff call: the run says so, exit 1."""
+    require('linuxcnc')
+    job = tmp_path / 'job'
+    job.mkdir()
+    (job / 'rapids.ngc').write_text('G21 G90\nG0 X40 Y40\nG0 X80 Y60\nG0 X5 Y5\nM2\n',
+                                    encoding='utf-8')
+    text = DATA.joinpath('sheetcam_style.yaml').read_text()
+    (job / 'rapids.yaml').write_text(text.replace('sheetcam_style.ngc', 'rapids.ngc')
+                                     .replace('name: sheetcam_style', 'name: rapids'),
+                                     encoding='utf-8')
+    rc, f, err = bringup_linuxcnc(job / 'rapids.yaml', tmp_path / 'run', *domain(ros_env),
+                                  timeout_s=300.0, env=ros_env)
+    report(f'exit {rc} {summary(f)}')
+    assert rc == 1 and f['finished'] is False and f['aborted'], summary(f)
+    assert f['linuxcnc']['bridge']['pierces'] == 0 and f['contacts'] == 0
+    assert 'program_error' not in f['linuxcnc']
+    assert [ln for ln in err.splitlines() if ln.startswith('bringup: ')][-1]
