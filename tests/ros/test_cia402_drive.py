@@ -102,3 +102,44 @@ def test_the_step_scenario_through_the_cia402_drive_in_lock_step(tmp_path):
     bus = run_headless('step', BusUnits('all')).metrics.error_rms_mm
     assert live['error_rms_mm'] == pytest.approx(bus, rel=1e-12, abs=0.0), (live, bus)
     assert abs(live['error_rms_mm'] / own - 1) <= 0.10, (live, own)
+
+
+def test_a_drive_that_is_not_ours_from_its_device_file_in_lock_step(tmp_path):
+    """Drive C: heartbeat watchdog, arrays per motor, the gap on a CiA 401 node (same SYNC)."""
+    from ladrc_cia402.device_file import load_device, make_plan
+    from ladrc_tools.bags.bag import open_bag
+
+    device = ROOT / 'ros2_ws' / 'src' / 'ladrc_cia402' / 'examples' / 'hub_c_io401.yaml'
+    bag, logs = tmp_path / 'bag', tmp_path / 'logs'
+    res = run([str(BIN / 'bringup'), '--drive', 'cia402', '--device', str(device),
+               '--scenario', 'step', '--lockstep', '--unpaced', '--bag', str(bag), '--logs',
+               str(logs), '--domain-id', os.environ['ROS_DOMAIN_ID']])
+    logs_text = '\n'.join(f'--- {p.name}\n{p.read_text(errors="replace")[-1500:]}'
+                          for p in sorted(logs.glob('*.log')))
+    assert res.returncode == 0, res.stdout[-2000:] + logs_text
+    assert last_json(res.stdout)['exit_codes'] == {
+        'ladrc_follow': 0, 'ladrc_driver': 0, 'ladrc_sim': 0, 'ladrc_recorder': 0}, logs_text
+    driver_log = (logs / 'ladrc_driver.log').read_text()
+    assert 'gap node, CSV, SYNC 500 us, heartbeat consumer 100 ms, operational' in driver_log
+    summary = json.loads((bag / 'recording.json').read_text())
+    n = summary['messages']['/axis/feedback']  # 4 s at 2 kHz and the sim's wind-down
+    assert summary['messages_lost'] == 0 and n >= 8000, summary
+    gap = open_bag(bag).columns('axis/capacitive_height', ['valid'])
+    assert gap['valid'].astype(bool).mean() > 0.99  # the I/O node's TPDO of every SYNC
+
+    rep = run([str(BIN / 'ladrc'), 'report', str(bag), '-q'])
+    live = last_json(rep.stdout)
+    assert rep.returncode == 0 and live['collisions'] == 0
+    replay = run([str(BIN / 'ladrc'), 'replay', str(bag)])
+    line = last_json(replay.stdout)
+    assert replay.returncode == 0 and line['mismatches'] == 0 and line['ticks'] == n
+
+    # the headless loop behind this drive's own units equals the live run to the last bit
+    from cia402_units import BusUnits
+    from ladrc_sim.headless.runner import run as run_headless
+
+    plan = make_plan(load_device(device))
+    ctrl = BusUnits('all')
+    ctrl.units, ctrl.analog = plan.units, plan.analog
+    assert live['error_rms_mm'] == pytest.approx(
+        run_headless('step', ctrl).metrics.error_rms_mm, rel=1e-12, abs=0.0)
