@@ -117,3 +117,35 @@ def test_a_program_that_cuts_nothing_is_not_finished(tmp_path, ros_env):
     assert f['linuxcnc']['bridge']['pierces'] == 0 and f['contacts'] == 0
     assert 'program_error' not in f['linuxcnc']
     assert [ln for ln in err.splitlines() if ln.startswith('bringup: ')][-1]
+
+
+def test_an_error_while_the_program_runs_ends_the_job(tmp_path, ros_env):
+    """A rapid past the table (X 3500 mm) after a cut: LinuxCNC stops the program.
+
+    The bridge ends the job (aborted, the head lifted); the run says so with the line, exit 1.
+    """
+    require('linuxcnc')
+    job = tmp_path / 'job'
+    job.mkdir()
+    (job / 'past.ngc').write_text('G21 G90\nG0 X40 Y40\nM3 $0 S1\nG1 X80 F2400\nM5 $0\n'
+                                  'G0 X3500 Y40\nG0 X5 Y5\nM2\n', encoding='utf-8')
+    text = DATA.joinpath('sheetcam_style.yaml').read_text()
+    (job / 'past.yaml').write_text(text.replace('sheetcam_style.ngc', 'past.ngc')
+                                   .replace('name: sheetcam_style', 'name: past'),
+                                   encoding='utf-8')
+    for attempt in range(1, ATTEMPTS + 1):
+        rc, f, err = bringup_linuxcnc(job / 'past.yaml', tmp_path / f'run{attempt}',
+                                      *domain(ros_env), timeout_s=300.0, env=ros_env)
+        report(f'attempt {attempt}: exit {rc} {summary(f)}')
+        assert f, err
+        assert f['contacts'] == 0 and rc == 1 and f['finished'] is False
+        if 'program_error' in f['linuxcnc'] or not timing_abort(f):
+            break
+    failed = f['linuxcnc']['program_error']
+    report(f'stopped {failed["after_s"]:.3f} s after cycle start: {failed}')
+    assert failed['when'] == 'run' and failed['line'] == 6
+    bridge = f['linuxcnc']['bridge']
+    assert bridge['pierces'] == 1 and bridge['aborted'] and not bridge['finished']
+    assert max(c['pierce_xy_mm'][0] for c in bridge['contours']) < 3001.0
+    last = [ln for ln in err.splitlines() if ln.startswith('bringup: ')][-1]
+    assert 'line 6 ' in last

@@ -357,9 +357,8 @@ class Sequencer:
                 log.fault_holds.append(self.fault_logged)
             self.abort(f'the height controller faulted: {a.get("fault_reason", "")}', now_s)
         elif s.flag(p.F_PROGRAM_ERROR) and self.phase not in ('done', 'aborted'):
-            self.abort(f'LinuxCNC stopped the program on an error (motion at line '
-                       f'{s.program_line}; the error and its line: the display)', now_s,
-                       pause=False)
+            self.abort('LinuxCNC stopped the program on an error (its text and line: the '
+                       "display's error)", now_s, pause=False)
             cmds += self._up_and_stop(answers)
         elif active and not alive:
             why = ('no follow/status from the height controller' if answers is None else
