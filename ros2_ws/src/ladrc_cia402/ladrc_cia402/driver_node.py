@@ -403,6 +403,16 @@ def main(argv: list[str] | None = None) -> int:
 
         signal.signal(signal.SIGINT, _stop)
         signal.signal(signal.SIGTERM, _stop)
+        # the plan before the bus: a drive the driver cannot run is refused in one line
+        from .device_file import PlanError, plan_text
+        try:
+            plan = p.plan()
+        except (PlanError, ConfigError) as exc:
+            print(f'driver_node: {exc}', file=sys.stderr)
+            return 2
+        node.publish_gap = plan.gap_source != 'topic'
+        for line in plan_text(plan).splitlines():
+            node.get_logger().info(line)
         try:
             net = _connect(p)
         except Exception as exc:  # noqa: BLE001 -- one line
@@ -419,14 +429,6 @@ def main(argv: list[str] | None = None) -> int:
         services = ServiceThread(node.context, (node,))
         services.start(p.thread_priority - 1 if fifo else 0)
         try:
-            from .device_file import PlanError, plan_text
-            try:
-                plan = p.plan()
-            except PlanError as exc:
-                raise ConfigError(str(exc)) from None
-            node.publish_gap = plan.gap_source != 'topic'
-            for line in plan_text(plan).splitlines():
-                node.get_logger().info(line)
             remote = _remote_node(net, plan.node_id, plan.eds_path)
             io = None
             if plan.io_node_id:
