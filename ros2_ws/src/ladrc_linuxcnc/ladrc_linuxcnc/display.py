@@ -282,7 +282,8 @@ def watch(s, e, status: Status, opened: str = '', program: str = '') -> None:
                  else 'idle' if s.interp_state == linuxcnc.INTERP_IDLE
                  else 'running')
         if state != last:
-            status(state, line=s.motion_line,
+            status(state, line=s.motion_line, read_line=s.read_line, mode=s.task_mode,
+                   interp=s.interp_state, exec=s.exec_state, queue=s.queue,
                    position_mm=[round(v, 4) for v in s.actual_position[:2]])
             last = state
         if state in ('running', 'paused'):

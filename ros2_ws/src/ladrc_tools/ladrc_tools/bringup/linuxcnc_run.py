@@ -425,7 +425,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
                    f'{bridge.get("aborted") or figures.get("aborted") or "no figures"})')
         figures['finished'] = False
     elif error:
-        verdict = f'LinuxCNC: {error}' if not error.startswith('LinuxCNC') else error
+        verdict = error
     if verdict:
         print(f'bringup: {" ".join(verdict.split())}', file=sys.stderr)
     print(json.dumps({'bag': args.bag, 'exit_codes': codes, 'job': job.name, 'cnc': 'linuxcnc',
