@@ -116,6 +116,9 @@ def test_refusals_are_one_line_naming_node_and_object(tmp_path):
     with pytest.raises(PlanError) as e:
         _plan(C, objects=replace(load_device(C).objects, velocity_actual_signed=False))
     assert '0x606C:01' in str(e.value) and 'UNSIGNED32' in str(e.value)
+    with pytest.raises(PlanError) as e:  # a target of one sign cannot move the axis down
+        _plan(C, objects=replace(load_device(C).objects, target_velocity='0x6083:00'))
+    assert str(e.value).startswith('node 5: 0x6083:00 Profile acceleration: UNSIGNED32')
     with pytest.raises(PlanError) as e:
         _plan(C, objects=replace(load_device(C).objects, target_velocity='0x60FF:05'))
     assert str(e.value).startswith('node 5: 0x60FF:05')

@@ -324,6 +324,10 @@ def _role_entry(od: Any, node: str, role: str, text: str, rx: bool, mapped: bool
                         f'0x{var.data_type:04X} in the EDS, not an integer of 8, 16 or 32 bits '
                         f"({need}); write {key}: the drive's integer object for it")
     bits, signed = _INT_TYPES[var.data_type]
+    if role == 'target_velocity' and not signed:
+        raise PlanError(f'{node}: {_where(index, sub)} {_name(od, index, sub)}: '
+                        f'UNSIGNED{bits} in the EDS ({need} runs both ways); write '
+                        "objects.target_velocity: the drive's signed velocity target")
     if role == 'velocity_actual' and not signed:
         if not signed_override:
             raise PlanError(f'{node}: {_where(index, sub)} {_name(od, index, sub)}: '
