@@ -16,8 +16,9 @@ import re
 import uuid
 
 import canopen
+from ladrc_cia402 import mapping
 from ladrc_cia402.device_file import PlanError, load_device, make_plan, plan_text
-from ladrc_cia402.master import ConfigError, DriverParams, configure
+from ladrc_cia402.master import Command, ConfigError, DriverParams, Master, configure
 from ladrc_sim.cia402.can_drive import default_device
 import pytest
 
@@ -259,3 +260,31 @@ def test_a_drive_that_answers_neither_csv_nor_pv_is_refused_at_configure():
     finally:
         bus.close()
     assert bus.drive.nmt.state != 'OPERATIONAL'
+
+
+def test_a_silent_io_node_faults_the_axis_and_names_the_node():
+    """Drive C's cycle waits for the I/O node's TPDO of the same SYNC; without it: a fault."""
+    p = DriverParams(device=str(C), missing_tpdo_cycles=3)
+    plan = p.plan()
+    io_alive = [True]
+
+    def send(cob, data):
+        if cob != mapping.SYNC_COB_ID:
+            return
+        values = {'statusword': 0x0237, 'position_actual': 1000, 'velocity_actual': 0,
+                  'gap': 1500}
+        for pdo in plan.tpdos:
+            m.on_frame(pdo.cob_id(5), mapping.pack(pdo.entries,
+                                                   tuple(values[e.name] for e in pdo.entries)))
+        if io_alive[0]:
+            for pdo in plan.io_tpdos:
+                m.on_frame(pdo.cob_id(6), mapping.pack(pdo.entries, (1500,)))
+
+    m = Master(p, send, plan)
+    s = m.cycle(Command(), 0.0)
+    assert s.fresh and s.gap_mm == 1.5 and s.gap_valid and not s.fault
+    io_alive[0] = False
+    for _ in range(3):
+        s = m.cycle(Command(), 0.0)
+    assert not s.fresh and s.fault and s.target == 0
+    assert s.fault_reason.startswith('no TPDO from node 6 for 3 cycles')

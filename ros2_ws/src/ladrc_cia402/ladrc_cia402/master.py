@@ -413,9 +413,16 @@ class Master:
                 self.missing += 1
                 self.missed_total += 1
                 if self.missing >= self.p.missing_tpdo_cycles and not self.fault_reason:
-                    self.fault_reason = (f'no TPDO from node {self.node_id} for '
+                    with self._cv:
+                        got = set(self._rx)
+                    io = self.plan.io_node_id
+                    io_cobs = {p_.cob_id(io) for p_ in self.plan.io_tpdos}
+                    lost = [c for c in self.tpdos if c not in got]
+                    who = ('I/O node (gap)' if lost and set(lost) <= io_cobs else 'drive')
+                    node = io if who != 'drive' else self.node_id
+                    self.fault_reason = (f'no TPDO from node {node} for '
                                          f'{self.missing} cycles (SYNC {self.p.period_s * 1e3:g}'
-                                         ' ms): bus or drive lost')
+                                         f' ms): bus or {who} lost')
             return self._sample(fresh, cw, target)
         except Exception as exc:  # noqa: BLE001 -- every exception path ends in a quick stop
             self._exception(exc)
