@@ -288,3 +288,21 @@ def test_a_silent_io_node_faults_the_axis_and_names_the_node():
         s = m.cycle(Command(), 0.0)
     assert not s.fresh and s.fault and s.target == 0
     assert s.fault_reason.startswith('no TPDO from node 6 for 3 cycles')
+
+
+def test_an_explicit_layout_in_the_device_file_is_taken_as_written():
+    dev = load_device(A)
+    p = make_plan(replace(dev, tpdo={
+        1: {'transmission': 1, 'mapping': [{'index': 0x6041, 'sub_index': 0},
+                                           {'index': 0x3100, 'sub_index': 1}]},
+        3: {'transmission': 1, 'mapping': ['0x6064:00', '0x606C:00']}}))
+    assert [(t.number, [e.name for e in t.entries]) for t in p.tpdos] == [
+        (1, ['statusword', 'gap']), (3, ['position_actual', 'velocity_actual'])]
+    assert p.tpdo_cobs() == (0x185, 0x385)
+    # TPDO2 and TPDO4 unused: disabled by bit 31
+    off = {w.index for w in p.writes if w.subindex == 1 and w.value & 0x80000000
+           and 'unused' in w.text}
+    assert {0x1801, 0x1803} <= off
+    with pytest.raises(PlanError) as e:  # a role left out of the layout
+        make_plan(replace(dev, tpdo={1: {'mapping': ['0x6041:00', '0x6064:00']}}))
+    assert '(velocity_actual): in no PDO of the layout' in str(e.value)
