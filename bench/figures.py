@@ -325,6 +325,13 @@ FIGURES: tuple[Figure, ...] = (
            'loop_timing', ('--duration', '60', '--loops', 'deadline'),
            lambda r: f'{_f(r["rate_hz"])} ticks/s, period p99 {_f(r["period_p99_us"])} µs, '
                      f'latency p99 {_f(r["latency_p99_ms"])} ms', readme=True),
+    Figure('showcase-free-running', 'the showcase free-running (`bringup --scenario showcase`, '
+           "the product's defaults), 10 runs: runs stopped by a timing guard", 'showcase_live',
+           ('--runs', '10'),
+           lambda r: f'{r["stopped_by_timing_guard"]} of {r["runs"]} stopped by a timing guard '
+                     f'({", ".join(f"{k} {v}" for k, v in r["faults_by_code"].items()) or "none"}'
+                     f'), {r["clean_runs"]} to their end with 0 faults, {r["other_faults"]} '
+                     'other faults', readme=True),
     Figure('lockstep-speed', 'lock step (sim + controller), unpaced, 20 s, shipped UDP profile',
            'loop_timing', ('--duration', '60', '--loops', 'deadline'),
            lambda r: f'{_f(r["lockstep_realtime_x"])}× real time with the full recorder '

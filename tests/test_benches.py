@@ -345,6 +345,18 @@ def test_loop_timing(ros_env: dict[str, str]) -> None:
 
 
 @pytest.mark.ros
+def test_showcase_live(ros_env: dict[str, str]) -> None:
+    """One free-running run of a 4 s scenario (its outcome is the machine's; the keys are not)."""
+    r = run_bench('showcase_live', '--runs', '1', '--scenario', 'step',
+                  '--domain-id', ros_env['ROS_DOMAIN_ID'], timeout_s=300, env=ros_env)
+    check(r, {'scenario': STR, 'runs': INT, 'clean_runs': INT, 'stopped_by_timing_guard': INT,
+              'other_faults': INT, 'faults_by_code': DICT, 'first_faults': LIST,
+              'failed': INT})
+    assert r['runs'] == 1 and r['failed'] == 0, r
+    assert r['clean_runs'] + r['stopped_by_timing_guard'] + r['other_faults'] == 1, r
+
+
+@pytest.mark.ros
 def test_live_jobs(ros_env: dict[str, str]) -> None:
     """The shortest shipped job in lock step (deterministic: the same on a loaded machine)."""
     r = run_bench('live_jobs', '--jobs', 'tipping_pair', '--lockstep',

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ladrc_contract.codes import FollowState, SubState
+from ladrc_contract.codes import FaultCode, FollowState, SubState
 from ladrc_contract.run_log import RunLog, verdict
 import ladrc_sim.headless
 from ladrc_tools.cli import main as ladrc
@@ -98,3 +98,38 @@ def test_an_undeclared_fault_fails_the_run(tmp_path):
     rep = json.loads((tmp_path / 'r' / 'report.json').read_text())
     assert not rep['ok'] and rep['final_state'] == 'FAULT' and len(rep['faults']) == 1
     assert (tmp_path / 'r' / 'report.md').read_text().splitlines()[2].startswith('**1 fault')
+
+
+@pytest.mark.parametrize('event,code', [
+    ({'do': 'sensor_dropout', 'duration_s': 0.05}, FaultCode.STALE_INPUT),
+    ({'do': 'drive', 'enabled': True, 'fault': True}, FaultCode.DRIVE),
+    ({'do': 'coverage', 'value': 0.0, 'ramp_s': 0.05}, FaultCode.SENSOR),
+])
+def test_the_controller_names_each_fault_by_its_code(event, code):
+    """A fault's FaultCode comes from where it is raised; the run log keeps it with the reason."""
+    from ladrc_follow.control.follow import FollowController
+    from ladrc_follow.control.params import ControllerParams
+    from ladrc_sim.headless.runner import run
+    from ladrc_sim.headless.scenario import scenario_from_dict
+
+    sc = scenario_from_dict({'name': 'one_fault', 'duration_s': 1.5, 'initial_gap_mm': 1.0,
+                             'timeline': [{'t_s': 0.0, 'do': 'start_follow',
+                                           'target_gap_mm': 1.0}, {'t_s': 0.8, **event}]})
+    ctl = FollowController(ControllerParams())
+    log = RunLog(H_S)
+
+    class Logged:
+        def command(self, name, **kw):
+            return ctl.command(name, **kw)
+
+        def step(self, tick):
+            u = ctl.step(tick)
+            st = ctl.internals()
+            log.tick(tick.t_s, st['state'], st['fault_reason'], tick.t_s - tick.gap_stamp_s,
+                     tick.t_s - tick.encoder_stamp_s, st['substate'], ctl.fault_code)
+            return u
+
+    run(sc, Logged())
+    faults = log.summary()['faults']
+    assert [f['code'] for f in faults] == [code.name], faults
+    assert ctl.fault_code == code

@@ -22,12 +22,13 @@ import re
 import struct
 from typing import Any, Sequence
 
-# CDR primitive: (struct code, size = alignment)
-_PRIMITIVES = {
-    'bool': ('?', 1), 'byte': ('B', 1), 'char': ('B', 1), 'int8': ('b', 1), 'uint8': ('B', 1),
-    'int16': ('h', 2), 'uint16': ('H', 2), 'int32': ('i', 4), 'uint32': ('I', 4),
-    'int64': ('q', 8), 'uint64': ('Q', 8), 'float32': ('f', 4), 'float64': ('d', 8),
+PRIMITIVES = {
+    'bool': ('?', 1), 'byte': ('B', 1), 'char': ('B', 1), 'octet': ('B', 1), 'int8': ('b', 1),
+    'uint8': ('B', 1), 'int16': ('h', 2), 'uint16': ('H', 2), 'int32': ('i', 4),
+    'uint32': ('I', 4), 'int64': ('q', 8), 'uint64': ('Q', 8), 'float32': ('f', 4),
+    'float64': ('d', 8),
 }
+"""CDR primitive -> (struct code, size = alignment): the one table of every CDR codec here."""
 # The IDL names rclpy's get_fields_and_field_types() uses -> the .msg primitive names above.
 _IDL_PRIMITIVES = {
     'boolean': 'bool', 'octet': 'byte', 'char': 'char', 'float': 'float32', 'double': 'float64',
@@ -102,7 +103,7 @@ class CdrPacker:
         for phase in range(8):
             pos, fmt = phase, '<'
             for kind in kinds:
-                code, size = _PRIMITIVES[kind]
+                code, size = PRIMITIVES[kind]
                 pad = (-pos) % size
                 fmt += 'x' * pad + code
                 pos += pad + size

@@ -74,6 +74,31 @@ class EventKind(IntEnum):
     HOLD = 13
 
 
+class FaultCode(IntEnum):
+    """Why the controller entered FAULT, by kind (its ``fault_reason`` says the detail).
+
+    The timing guards (:data:`TIMING_GUARDS`) are the faults a late process can cause: an input
+    older than ``follow.stale_timeout_s`` or stamped ahead, the loop's own sample period or
+    lock step, and the drive's report of a fault (its command watchdog among them).
+    """
+
+    NONE = 0
+    STALE_INPUT = 1     # an input older than the stale limit, or stamped in the future
+    LOOP_TIMING = 2     # the loop's sample period or lock step out of its limits
+    DRIVE = 3           # the drive reports a fault or was disabled while following
+    COLLISION = 4       # contact evidence (a retract follows)
+    NOT_FOLLOWED = 5    # not followed within the time limit (edge check, approach)
+    SENSOR = 6          # the gap reading: not finite, frozen, invalid too long, miss-panel
+    ENCODER = 7         # the encoder position not finite
+    START = 8           # start_follow could not lock (LOCKING timeout)
+    INTERNAL = 9        # an exception or a non-finite command in the tick
+    TOPOLOGY = 10       # the graph: a second commander, a missing input publisher
+
+
+TIMING_GUARDS = frozenset({FaultCode.STALE_INPUT, FaultCode.LOOP_TIMING, FaultCode.DRIVE})
+"""Fault codes a stall of the machine can cause (a real fault can cause them too)."""
+
+
 class Segment(IntEnum):
     """The kind of the CNC's segment: ``CncMotion.SEGMENT_*``."""
 

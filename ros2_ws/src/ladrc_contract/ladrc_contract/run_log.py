@@ -2,8 +2,9 @@
 
 One implementation for the follow node (:meth:`RunLog.tick`, once per tick, scalars) and for
 the reports of a bag's ``follow/status`` (:meth:`RunLog.add`, columns). A fault is an entry
-into ``FollowState.FAULT``: its time, the state before, the reason and the ages of the two
-inputs at that tick. A hold is an episode of one ``SubState`` other than NONE.
+into ``FollowState.FAULT``: its time, the state before, its ``FaultCode`` (where the controller
+gives it: the node and the runners, not a bag), the reason and the ages of the two inputs at
+that tick. A hold is an episode of one ``SubState`` other than NONE.
 :func:`verdict` turns a summary into the one line a run ends with.
 """
 
@@ -14,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from .codes import FollowState, SubState
+from .codes import TIMING_GUARDS, FaultCode, FollowState, SubState
 
 _FAULT = int(FollowState.FAULT)
 _NAMES = [s.name for s in FollowState]
@@ -42,14 +43,14 @@ class RunLog:
         self.t_s = math.nan
 
     def tick(self, t_s: float, state: int, reason: str, gap_age_s: float,
-             encoder_age_s: float, substate: int = 0) -> None:
-        """Take one tick: its time [s], state, fault reason, input ages [s] and substate."""
+             encoder_age_s: float, substate: int = 0, code: int = 0) -> None:
+        """Take one tick: time [s], state, fault reason, input ages [s], substate, FaultCode."""
         if self.t0_s != self.t0_s:  # NaN: the first tick
             self.t0_s = t_s
         self.state_ticks[state] += 1
         if state != self.state:
             if state == _FAULT:
-                self._fault(t_s, self.state, reason, gap_age_s, encoder_age_s)
+                self._fault(t_s, self.state, reason, gap_age_s, encoder_age_s, code)
             self.state = state
         if substate:
             self.hold_ticks[substate] += 1
@@ -90,8 +91,10 @@ class RunLog:
         self.t_s = float(t_s[-1])
 
     def _fault(self, t_s: float, before: int, reason: str, gap_age_s: float,
-               encoder_age_s: float) -> None:
+               encoder_age_s: float, code: int = 0) -> None:
         self.faults.append({
+            'code': FaultCode(code).name if code else None,  # None: not recorded (a bag)
+            'timing_guard': (FaultCode(code) in TIMING_GUARDS) if code else None,
             't_s': round(t_s - self.t0_s, 4),
             'state_before': _NAMES[before] if before >= 0 else 'none',
             'reason': reason, 'gap_age_ms': _ms(gap_age_s),
@@ -126,8 +129,10 @@ def verdict(summary: dict[str, Any], expect_fault: bool = False) -> tuple[bool, 
         text = f'0 faults, ended in {final}'
     else:
         first = faults[0]
+        code = f' [{first["code"]}{", a timing guard" if first.get("timing_guard") else ""}]' \
+            if first.get('code') else ''
         text = (f'{len(faults)} fault(s), the first at {first["t_s"]:g} s from '
-                f'{first["state_before"]}: {first["reason"]}; ended in {final}')
+                f'{first["state_before"]}{code}: {first["reason"]}; ended in {final}')
         last = summary.get('final_reason', '')
         if final == FollowState.FAULT.name and last and last != first['reason']:
             text += f' ({last})'

@@ -17,6 +17,8 @@ from pathlib import Path
 import sys
 from typing import Any
 
+from ladrc_contract.run_log import verdict
+
 from .cli_common import CliError
 
 FEATURES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
@@ -189,8 +191,10 @@ def _run_job(a: argparse.Namespace) -> int:
 
         draw_job(job, result, out_dir / 'job.png')
         write_bag(job, result, out_dir / 'bag')
-    print(json.dumps(out, default=str))
-    return 0
+    ok, text = verdict(result.run, job.expect_fault)
+    print(f'ladrc job {job.name}: {"ok" if ok else "FAILED"}: {text}', file=sys.stderr)
+    print(json.dumps({**out, 'run': result.run, 'ok': ok}, default=str))
+    return 0 if ok else 1
 
 
 def realtime_x(result: Any) -> float:

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
-from ladrc_contract.codes import EventKind
+from ladrc_contract.codes import EventKind, FaultCode
 from ladrc_contract.events import EventFields
 from ladrc_contract.events import encode as encode_event
 from ladrc_contract.exit_signals import ignore_stop_signals
@@ -381,7 +381,7 @@ class FollowNode(LoopNode):
         """
         with self._lock:
             if fail and self.controller.state != FollowState.FAULT:
-                self.controller.fail(fail)
+                self.controller.fail(fail, FaultCode.LOOP_TIMING)
             self._tick(t_s, stamp_ns)
 
     def _tick(self, t_s: float | None, stamp_ns: int | None) -> None:
@@ -391,7 +391,7 @@ class FollowNode(LoopNode):
         if not self._accepted.empty():
             self._apply_accepted()
         if self.topology_problem and self.controller.state != FollowState.FAULT:
-            self.controller.fail(f'topology: {self.topology_problem}')
+            self.controller.fail(f'topology: {self.topology_problem}', FaultCode.TOPOLOGY)
         s = self.samples
         if t_s is None:
             t_s = (start_mono - self._t0_ns) * 1e-9
@@ -425,7 +425,8 @@ class FollowNode(LoopNode):
             st[ix[name]] = value
         t = tick.t_s
         self.run_log.tick(t, internals['state'], internals['fault_reason'], t - tick.gap_stamp_s,
-                          t - tick.encoder_stamp_s, internals['substate'])
+                          t - tick.encoder_stamp_s, internals['substate'],
+                          self.controller.fault_code)
         st[0], st[1], st[3] = sec, nsec, self.tick_index
         values = (tick.t_s, s.gap_seq, tick.gap_mm, tick.gap_valid, tick.gap_status,
                   tick.gap_stamp_s, s.enc_seq, tick.encoder_mm, tick.encoder_stamp_s,

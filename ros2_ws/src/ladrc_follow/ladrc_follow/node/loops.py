@@ -28,6 +28,7 @@ import threading
 import time
 from typing import Any, Protocol
 
+from ladrc_contract.codes import FaultCode
 from ladrc_contract.loop_io import SampleWait
 
 from ..control.follow import FollowController, FollowState
@@ -134,5 +135,6 @@ def run_lockstep(node: FollowNode, running: list[bool]) -> None:
                 and node.controller.state != FollowState.FAULT):
             with node._lock:
                 node.controller.fail(f'lock step: no step from the sim for '
-                                     f'{node.node_params.lockstep_timeout_s:g} s (wall clock)')
+                                     f'{node.node_params.lockstep_timeout_s:g} s (wall clock)',
+                                     FaultCode.LOOP_TIMING)
             node.publish_zero('lock step: the sim stopped')

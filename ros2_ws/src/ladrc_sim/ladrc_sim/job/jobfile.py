@@ -130,6 +130,7 @@ class Job:
     drawing: DrawingKeys = DrawingKeys()
     gcode: Path | None = None  # the user's G-code program (LinuxCNC reads it), instead of dxf
     time_budget: float | None = None  # the job file's time_budget_s, if it gives one
+    expect_fault: bool = False  # the run may end in FAULT (a job that provokes one)
 
     def plate(self):
         """Return the plate's outline (a rectangle from the origin)."""
@@ -220,7 +221,8 @@ def _section(cls: type, data: Any, where: str) -> Any:
 
 _TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
         'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'dxf_origin_mm', 'seed',
-        'limits', *(f.name for f in fields(DrawingKeys)), 'gcode', 'time_budget_s')
+        'limits', *(f.name for f in fields(DrawingKeys)), 'gcode', 'time_budget_s',
+        'expect_fault')
 GCODE_TIME_BUDGET_S = 600.0
 """A G-code job's time bound when its file gives no ``time_budget_s``."""
 
@@ -255,6 +257,9 @@ def load_job(path: str | Path) -> Job:
     if ('dxf' in data) == ('gcode' in data):
         raise JobError(f'{path}: dxf or gcode: the program, one of them '
                        + ('(both given)' if 'dxf' in data else '(neither given)'))
+    expect_fault = data.get('expect_fault', False)
+    if not isinstance(expect_fault, bool):
+        raise JobError(f'{path}: expect_fault: true or false, got {expect_fault!r}')
     budget = data.get('time_budget_s')
     if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, float))
                                or not 1.0 <= budget <= 86400.0):
@@ -310,7 +315,8 @@ def load_job(path: str | Path) -> Job:
                start_height_mm=float(data.get('start_height_mm', 10.0)),
                seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}),
                drawing=drawing, gcode=gcode,
-               time_budget=float(budget) if budget is not None else None)
+               time_budget=float(budget) if budget is not None else None,
+               expect_fault=expect_fault)
 
 
 JOBS_DIR = Path(__file__).resolve().parent / 'jobs'

@@ -31,6 +31,7 @@ import time
 from typing import Any, Callable
 
 from ladrc_contract.codes import FollowState, Segment, SubState
+from ladrc_contract.run_log import RunLog
 from ladrc_contract.tick import TickInput
 import numpy as np
 
@@ -59,6 +60,7 @@ class JobResult:
     events: list[tuple[int, str, dict]] = field(default_factory=list)  # (tick, command, args)
     internals: dict[str, np.ndarray] | None = None  # the controller's status, every tick
     sensor: SensorParams | None = None  # the job's sensor (the raw value behind each reading)
+    run: dict[str, Any] = field(default_factory=dict)  # faults, holds, states (RunLog.summary)
 
     def as_run(self, h_s: float = H_S) -> JobRun:
         """Return the run in the scenario runner's result layout (a bag writer's input)."""
@@ -182,6 +184,7 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
         getattr(controller, name, None) for name in ('truth', 'quick_stop', 'refusals'))
     last = 0
     end = JobEnd()
+    run_log = RunLog(h)  # every fault with its reason (the job's inputs are fresh every tick)
     rows: list[dict] | None = [] if record_internals else None
     wall0 = time.perf_counter()
     for i in range(n):
@@ -218,6 +221,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
             c_truth(t, true_gap, z - true_gap, z, cov, math.nan, x, y)
         u = c_step(TickInput(t, reading, valid, t, z, t, True, False, status), sample)
         answers = c_internals()
+        run_log.tick(t, answers['state'], answers['fault_reason'], 0.0, 0.0, answers['substate'],
+                     getattr(controller, 'fault_code', 0))
         axis.step(u, True, c_quick_stop is not None and c_quick_stop())
         kerf.step(x, y, view.beam and view.segment == CUT)  # the kerf, as it is cut
         if rows is not None:  # with the drive enable the command went out with (the bag's)
@@ -248,7 +253,8 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     figures['locked_contours'] = getattr(cnc.log, 'locked', 0)
     if program.reading is not None:
         figures['drawing'] = program.reading
-    return JobResult(job.name, series, figures, cnc.log, wall, events, internals, job.sensor)
+    return JobResult(job.name, series, figures, cnc.log, wall, events, internals, job.sensor,
+                     run_log.summary())
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -23,15 +23,13 @@ from __future__ import annotations
 
 from typing import Any, Iterable
 
+from ladrc_contract.cdr import PRIMITIVES
 import numpy as np
 
 from .errors import BagError
 
-CDR_PRIMITIVES = {
-    'bool': '?', 'uint8': 'u1', 'int8': 'i1', 'byte': 'u1', 'char': 'u1', 'octet': 'u1',
-    'uint16': '<u2', 'int16': '<i2', 'uint32': '<u4', 'int32': '<i4', 'uint64': '<u8',
-    'int64': '<i8', 'float32': '<f4', 'float64': '<f8'}
-"""CDR primitive -> numpy format (little endian)."""
+CDR_PRIMITIVES = {name: np.dtype('<' + code).str for name, (code, _) in PRIMITIVES.items()}
+"""CDR primitive -> numpy format (little endian), from ``ladrc_contract.cdr.PRIMITIVES``."""
 
 ENCAPSULATION_BYTES = 4
 """The CDR encapsulation header; alignment counts from its end."""

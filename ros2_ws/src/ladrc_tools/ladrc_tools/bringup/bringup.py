@@ -26,6 +26,8 @@ import tempfile
 import time
 from typing import Any, Mapping
 
+from ladrc_contract.run_log import verdict
+
 
 @dataclass
 class NodeSpec:
@@ -389,6 +391,34 @@ def job_params_file(job_name: str, base_file: str | None, folder: Path) -> str:
     return str(path)
 
 
+def run_expects_fault(job: str | None, scenario: str) -> bool:
+    """Whether the run may end in FAULT: its scenario's or job's ``expect_fault``.
+
+    Raises ValueError (one line) when the scenario or job does not load.
+    """
+    if job:
+        from ladrc_sim.job.jobfile import JobError, find_job
+
+        try:
+            return bool(getattr(find_job(job), 'expect_fault', False))
+        except JobError as exc:
+            raise ValueError(str(exc)) from None
+    from ladrc_sim.headless.scenario import ScenarioError, load_scenario
+
+    try:
+        return load_scenario(scenario).expect_fault
+    except ScenarioError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def run_summary(path: Path) -> dict[str, Any]:
+    """Return the run the follow node wrote (ladrc_contract.run_log); {} if it wrote none."""
+    try:
+        return json.loads(path.read_text(encoding='utf-8'))
+    except (OSError, ValueError):
+        return {}
+
+
 def job_figures(path: Path | None) -> dict[str, Any]:
     """Return the job's figures the sim node wrote; ``{'finished': False}`` if it wrote none."""
     if path is None or not path.is_file():
@@ -479,9 +509,14 @@ def main(argv: list[str] | None = None) -> int:
         if busy:
             print(f'bringup: --view-port: cannot listen on {busy}', file=sys.stderr)
             return 2
-    scratch = Path(tempfile.mkdtemp(prefix='bringup-')) if args.job else None
     try:
-        params = (job_params_file(args.job, args.params, scratch) if scratch is not None
+        expect_fault = run_expects_fault(args.job, args.scenario)
+    except ValueError as exc:
+        print(f'bringup: {exc}', file=sys.stderr)
+        return 2
+    scratch = Path(tempfile.mkdtemp(prefix='bringup-'))
+    try:
+        params = (job_params_file(args.job, args.params, scratch) if args.job
                   else args.params)
     except ValueError as exc:
         shutil.rmtree(scratch, ignore_errors=True)
@@ -505,10 +540,13 @@ def main(argv: list[str] | None = None) -> int:
                        separate_cnc=args.separate_cnc, drive=args.drive, bus=bus,
                        period_s=period_ms * 1e-3,
                        device=str(Path(args.device).resolve()) if args.device else '')
-    figures_file = scratch / 'figures.json' if scratch is not None else None
+    figures_file = scratch / 'figures.json' if args.job else None
     if figures_file is not None:  # the sim node writes the job's figures there
         next(s for s in specs if s.name == 'ladrc_sim').parameters['figures_file'] = str(
             figures_file)
+    summary_file = scratch / 'run.json'  # the follow node writes its run there at exit
+    next(s for s in specs if s.name == 'ladrc_follow').parameters['summary_file'] = str(
+        summary_file)
     if args.view:  # first, so that it shows the run from its start
         specs.insert(0, view_spec(args.view_port))
     env = isolated_env(args.domain_id)
@@ -541,12 +579,19 @@ def main(argv: list[str] | None = None) -> int:
         if bus_server is not None:
             bus_server.stop()
         figures = job_figures(figures_file)
-        if scratch is not None:
-            shutil.rmtree(scratch, ignore_errors=True)
-    # a job: its figures in the last line (docs/job-world.md); none if it did not end
+        run = run_summary(summary_file)
+        shutil.rmtree(scratch, ignore_errors=True)
+    clean = all(c in (0, -2, 130) for c in codes.values())
+    ok, text = verdict(run, expect_fault) if run else (False, 'the follow node wrote no run '
+                                                              'summary')
+    ok = ok and clean
+    outcome = f'{"ok" if ok else "FAILED"}: {text}' + ('' if clean else f'; exit codes {codes}')
+    print(f'bringup: {outcome}', file=sys.stderr)
+    # last line: a job's figures (docs/job-world.md; none if it did not end), the run's faults
     print(json.dumps({'bag': args.bag, 'exit_codes': codes,
-                      **({'job': args.job, **figures} if args.job else {})}))
-    return 0 if all(c in (0, -2, 130) for c in codes.values()) else 1
+                      **({'job': args.job, **figures} if args.job else {}), 'run': run,
+                      'ok': ok, 'outcome': outcome}))
+    return 0 if ok else 1
 
 
 if __name__ == '__main__':

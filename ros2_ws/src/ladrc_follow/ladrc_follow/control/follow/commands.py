@@ -144,6 +144,7 @@ def _apply_reset(c, st: int, kw: dict) -> None:
     if st == FAULT and not c._retracting:
         c.enter(IDLE)
         c._fault_reason = ''
+        c._fault_code = 0
 
 
 # ---- machining / height compensation / gradient follow / target wave -----------------------

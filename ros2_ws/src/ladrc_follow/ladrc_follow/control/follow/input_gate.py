@@ -17,10 +17,14 @@ from __future__ import annotations
 
 import math
 
+from ladrc_contract.codes import FaultCode
+
 from ..void_lock import VoidLock
 from .states import GAP_STATUS_COLLISION, GAP_STATUS_FAULT, GAP_STATUS_OUT_OF_RANGE
 
 USABLE, HOLD, FAULT, COLLISION, DRIVE = 0, 1, 2, 3, 4
+_STALE, _SENSOR, _ENCODER, _COLLISION_CODE = (int(c) for c in (
+    FaultCode.STALE_INPUT, FaultCode.SENSOR, FaultCode.ENCODER, FaultCode.COLLISION))
 """Verdicts: the (possibly predicted) gap may be used; hold (nothing further down, the law not
 stepped); fault; fault and retract (collision evidence); the drive faulted or disabled."""
 
@@ -38,6 +42,7 @@ class InputGate:
         self.counts = counts
         self.void = void
         self.reason = ''
+        self.code = 0  # the FaultCode of a FAULT or COLLISION verdict
         self.gap_mm = math.nan  # the gap the law may use (USABLE): the reading or its prediction
         self.fresh = True       # this tick's gap is a new sample (not the encoder prediction)
         self._used_stamp_s = math.nan  # stamp of the sample used last
@@ -68,8 +73,9 @@ class InputGate:
         return status == GAP_STATUS_COLLISION or (
             math.isfinite(gap_mm) and gap_mm <= self._collision_mm and (valid or not status))
 
-    def _verdict(self, verdict: int, reason: str) -> int:
+    def _verdict(self, verdict: int, reason: str, code: int = 0) -> int:
         self.reason = reason
+        self.code = code if code else (_COLLISION_CODE if verdict == COLLISION else 0)
         return verdict
 
     def lock(self, tick: tuple) -> tuple[int, str]:
@@ -108,9 +114,9 @@ class InputGate:
             return DRIVE
         if not (t - estamp <= self._stale_s and estamp <= t + self._h):
             return self._verdict(FAULT, f'stale encoder: age {(t - estamp) * 1e3:.3g} ms '
-                                        f'(limit {self._stale_s * 1e3:.3g} ms)')
+                                        f'(limit {self._stale_s * 1e3:.3g} ms)', _STALE)
         if not math.isfinite(enc):
-            return self._verdict(FAULT, f'encoder position not finite ({enc!r})')
+            return self._verdict(FAULT, f'encoder position not finite ({enc!r})', _ENCODER)
         if self.collision_evidence(gap, valid, status):
             return self._verdict(COLLISION, f'collision during a planned move: gap reading '
                                             f'{gap:.3f} mm, status {status}; retracting '
@@ -127,21 +133,23 @@ class InputGate:
         if not (t - gstamp <= s and t - estamp <= s):
             return self._verdict(FAULT, f'stale input: gap age {(t - gstamp) * 1e3:.3g} ms, '
                                         f'encoder age {(t - estamp) * 1e3:.3g} ms '
-                                        f'(limit {s * 1e3:.3g} ms)')
+                                        f'(limit {s * 1e3:.3g} ms)', _STALE)
         if not (gstamp <= t + self._h and estamp <= t + self._h):
             # a sample from the future: a clock the controller cannot trust
             return self._verdict(FAULT, f'input stamped in the future: gap '
                                         f'{(gstamp - t) * 1e3:.3g} ms, encoder '
-                                        f'{(estamp - t) * 1e3:.3g} ms ahead of the tick')
+                                        f'{(estamp - t) * 1e3:.3g} ms ahead of the tick',
+                                 _STALE)
         if not math.isfinite(enc):
-            return self._verdict(FAULT, f'encoder position not finite ({enc!r})')
+            return self._verdict(FAULT, f'encoder position not finite ({enc!r})', _ENCODER)
         if status == GAP_STATUS_COLLISION:
             return self._verdict(COLLISION, 'collision: the sensor reports nozzle contact; '
                                             f'retracting {self._retract_mm:g} mm')
         if not valid or status:
             return self._unusable(gap, status)
         if not math.isfinite(gap):
-            return self._verdict(FAULT, f'gap reading not finite ({gap!r}) though marked valid')
+            return self._verdict(FAULT, f'gap reading not finite ({gap!r}) though marked valid',
+                                 _SENSOR)
         if gap <= self._collision_mm:
             return self._verdict(COLLISION, f'collision: gap reading {gap:.3f} mm <= limit '
                                             f'{self._collision_mm:g} mm; retracting '
@@ -172,7 +180,7 @@ class InputGate:
                 self.counts['frozen'] += 1
                 return self._verdict(FAULT, f'frozen gap reading: {self._same_count + 1} '
                                             f'identical samples ({gap:.4f} mm) while the '
-                                            f'encoder moved {moved:+.3f} mm')
+                                            f'encoder moved {moved:+.3f} mm', _SENSOR)
         else:
             self._same_count, self._same_enc0_mm = 0, enc
         if self.void.sample(t, gap - (self._accepted_gap_mm + (enc - self._accepted_enc_mm))):
@@ -192,7 +200,7 @@ class InputGate:
         if share > self._share_max:
             return self._verdict(FAULT, f'gap readings invalid too often: {share:.0%} of the '
                                         f'samples over the last {self._share_tau_s:g} s '
-                                        f'(limit {self._share_max:.0%})')
+                                        f'(limit {self._share_max:.0%})', _SENSOR)
         if status == GAP_STATUS_OUT_OF_RANGE or (
                 status == 0 and finite and gap > self._collision_mm):
             self.counts['out_of_range'] += 1
@@ -200,7 +208,8 @@ class InputGate:
             if self._miss_ticks >= self._miss_max:
                 return self._verdict(FAULT, 'miss-panel: no sheet under the nozzle (gap reading '
                                             'out of range for '
-                                            f'{self._miss_ticks * self._h * 1e3:.3g} ms)')
+                                            f'{self._miss_ticks * self._h * 1e3:.3g} ms)',
+                                     _SENSOR)
         elif status == 0 and finite:
             return self._verdict(COLLISION, f'collision: invalid gap reading {gap:.3f} mm at or '
                                             f'below the limit {self._collision_mm:g} mm; '
@@ -212,7 +221,8 @@ class InputGate:
                 what = 'sensor fault status' if status == GAP_STATUS_FAULT else (
                     f'status {status}' if status else 'not finite')
                 return self._verdict(FAULT, f'gap reading invalid ({what}) for '
-                                            f'{self._invalid_ticks * self._h * 1e3:.3g} ms')
+                                            f'{self._invalid_ticks * self._h * 1e3:.3g} ms',
+                                     _SENSOR)
             return self._verdict(HOLD, 'gap reading invalid: held (a FAULT after '
                                        f'{self._invalid_max * self._h * 1e3:.3g} ms)')
         return self._verdict(HOLD, 'no sheet under the nozzle (reading out of range): held (a '

@@ -32,6 +32,7 @@ from dataclasses import replace
 import math
 from typing import Any, Callable, NamedTuple
 
+from ladrc_contract.codes import FaultCode
 from ladrc_contract.ops import SCALAR
 
 from ..edge import EDGE, FALLING, HOLD, VERIFY, EdgeGuard
@@ -68,6 +69,8 @@ from .states import (
     LADRC as LADRC_STATE,
 )
 
+_COLLISION_CODE, _NOT_FOLLOWED, _DRIVE, _START = (int(c) for c in (
+    FaultCode.COLLISION, FaultCode.NOT_FOLLOWED, FaultCode.DRIVE, FaultCode.START))
 _PID_KALMAN_RESET = (math.nan, 0.0, 0, 0.0)  # the PID's Kalman filter restarts on the next reading
 
 
@@ -138,6 +141,7 @@ class FollowController:
         self._machining = False
         self._followed = False
         self._fault_reason = ''
+        self._fault_code = 0  # FaultCode of the present FAULT (0: none)
         self._comp: list[tuple[int, float]] = []  # (due tick, offset)
         self._gradients: list[tuple[int, float, float, float]] = []  # (due, target, v, a)
         self._wave: TargetWave | None = None  # test signal on the target (seed SIN_GEN)
@@ -265,6 +269,11 @@ class FollowController:
         return self._fault_reason
 
     @property
+    def fault_code(self) -> int:
+        """The :class:`~ladrc_contract.codes.FaultCode` of the present FAULT (0 otherwise)."""
+        return self._fault_code
+
+    @property
     def target_gap_mm(self) -> float:
         """Follow target incl. the active height compensation (NaN when not following)."""
         return self._target_eff
@@ -390,9 +399,10 @@ class FollowController:
         self._inpos_ticks = 0
         self._approach_ticks = 0
 
-    def _fault(self, reason: str, retract: bool = False) -> float:
+    def _fault(self, reason: str, retract: bool = False, code: int = 0) -> float:
         self._stop(FAULT)
         self._fault_reason = reason
+        self._fault_code = code or (_COLLISION_CODE if retract else _NOT_FOLLOWED)
         if self._u < 0.0:
             self._u = 0.0  # safety: motion toward the sheet stops at once, upward may ramp
         self._retracted = retract
@@ -412,13 +422,18 @@ class FollowController:
         self._stop(FAULT)
         self._fault_reason = ('drive fault reported by the drive: command 0' if dfault else
                               'drive disabled during follow: command 0')
+        self._fault_code = _DRIVE
         self._retracting = False
         return self._out_zero()
 
-    def fail(self, reason: str) -> float:
-        """Enter FAULT with a zero command now (exceptions, non-finite values); return 0.0."""
+    def fail(self, reason: str, code: int = FaultCode.INTERNAL) -> float:
+        """Enter FAULT with a zero command now (exceptions, non-finite values); return 0.0.
+
+        ``code``: the :class:`FaultCode` (default INTERNAL; the node's own faults name theirs).
+        """
         self._stop(FAULT)
         self._fault_reason = reason
+        self._fault_code = int(code)
         self._retracting = False
         return self._out_zero()
 
@@ -530,7 +545,8 @@ class FollowController:
         self._lock_ticks += 1
         if self._lock_ticks >= self._lock_max:
             return self._fault(f'start_follow failed: {why} '
-                               f'(LOCKING timeout {self.follow_params.locking_timeout_s:g} s)')
+                               f'(LOCKING timeout {self.follow_params.locking_timeout_s:g} s)',
+                               code=_START)
         return self._ramp_to_zero()
 
     def _tick_planned(self, tick: tuple) -> float:
@@ -545,7 +561,7 @@ class FollowController:
         if verdict != gate.USABLE:
             if verdict == gate.DRIVE:
                 return self._drive_fault(tick[7])
-            return self._fault(ig.reason, verdict == gate.COLLISION)
+            return self._fault(ig.reason, verdict == gate.COLLISION, ig.code)
         gap = tick[1] if (tick[2] and not tick[8]) else math.nan
         u = self._limit(self._partner.planned_velocity(tick[4], gap))
         self._source = SOURCE_NONE
@@ -563,7 +579,7 @@ class FollowController:
                 return self._hold_up_only()
             if verdict == gate.DRIVE:
                 return self._drive_fault(tick[7])
-            return self._fault(ig.reason, verdict == gate.COLLISION)
+            return self._fault(ig.reason, verdict == gate.COLLISION, ig.code)
         gap, enc = ig.gap_mm, tick[4]
         if self._reapproach:  # after a lift or a leapfrog: from the gap as it is now
             self._reapproach = False
