@@ -167,14 +167,15 @@ def port_in_use(port: int, host: str = '127.0.0.1') -> str | None:
 def axis_node_specs(params_file: str | None = None, bag: str | None = None,
                     loop: str = 'deadline', storage: str = 'mcap',
                     hardware_id: str = 'z_axis', cia402_eds: str = '', can: str = 'can0',
-                    node_id: int = 5) -> list[NodeSpec]:
+                    node_id: int = 5, cia402_device: str = '') -> list[NodeSpec]:
     """Return the nodes of a run on a real axis: the follow node (+ recorder), no simulator.
 
     The axis' driver node is the integrator's: it publishes ``axis/capacitive_height`` and
     ``axis/feedback`` and executes ``axis/velocity_command`` (docs/interfaces.md); with
     ``cia402_eds`` (the drive's EDS/DCF) it is the shipped CiA 402 driver node on the socketcan
-    channel (or ``ws://`` test bus) ``can`` (docs/cia402.md). Lock step is refused: it is the
-    sim node's (a drive does not wait for its controller).
+    channel (or ``ws://`` test bus) ``can`` (docs/cia402.md); with ``cia402_device`` (the drive's
+    device file: its node id, EDS, objects, PDOs and watchdog) the same driver configured from
+    it. Lock step is refused: it is the sim node's (a drive does not wait for its controller).
     """
     if loop not in LIVE_LOOPS:
         raise ValueError(f"loop {loop!r} is not offered against a real axis (one of "
@@ -184,7 +185,10 @@ def axis_node_specs(params_file: str | None = None, bag: str | None = None,
         specs.append(NodeSpec('ladrc_tools', 'recorder', 'ladrc_recorder',
                               parameters={'output': bag, 'storage': storage,
                                           'machine_id': hardware_id}))
-    if cia402_eds:
+    if cia402_device:
+        specs.append(NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver', parameters={
+            'device': cia402_device, 'bus_interface': bus_interface(can), 'bus_channel': can}))
+    elif cia402_eds:
         specs.append(NodeSpec('ladrc_cia402', 'driver_node', 'ladrc_driver', parameters={
             'eds': cia402_eds, 'bus_interface': bus_interface(can), 'bus_channel': can,
             'node_id': int(node_id)}))
