@@ -17,7 +17,7 @@ controller SIGKILLed while following (time until the simulated axis is at rest),
 killed and restarted (the controller holds and resumes only on command), the recorder SIGKILLed
 (how much of the bag is lost), a second publisher injecting NaN readings marked valid, a live
 parameter fuzz over SetParameters, ``--load-s`` seconds of following with two busy loops at
-normal priority on both cores (spurious faults), and (issue 21) rounds of 20 nodes with
+normal priority on both cores (spurious faults), and rounds of 20 nodes with
 parameter clients, each in a process of its own, appearing and vanishing for ``--clients-s``
 seconds while the axis follows (faults, tick period max and p99, drive watchdog trips). The
 topics are watched, and services called, through the test probe process
@@ -31,7 +31,7 @@ A contact is a true gap <= 0 (sim truth). Last line: one JSON object with at lea
 ``invalid_params_accepted``, ``invalid_params_tried``, ``spurious_faults_under_load``,
 ``kill_stop_ms``, ``recorder_kill_loss_s``, ``param_clients``, and every row.
 
-CiA 402 rows (``canopen``, issue 41) run the same follow on the CANopen path (the CiA 402
+CiA 402 rows (``canopen``) run the same follow on the CANopen path (the CiA 402
 driver node, the emulated drive, the test bus; free-running at 1 ms, the period the test bus
 holds on 2 cores): the driver SIGKILLed (the shipped drive's RPDO event timer; and a drive
 without one, ``examples/servo_a_heartbeat.yaml``, whose heartbeat consumer stops it), the
@@ -39,7 +39,7 @@ emulated drive SIGKILLed, the bus server killed, an EMCY following error, a seco
 RPDOs at -50 mm/s, random frames on the bus; last-line keys ``canopen_kill_stop_ms``,
 ``canopen_heartbeat_kill_stop_ms`` and ``canopen_node_crashes``.
 
-LinuxCNC rows (``linuxcnc``, issue 42; ``bringup --cnc linuxcnc --fault``, a three-contour
+LinuxCNC rows (``linuxcnc``; ``bringup --cnc linuxcnc --fault``, a three-contour
 job): LinuxCNC SIGKILLed while cutting (the controller lifts the head and stops), the bridge
 SIGKILLed (LinuxCNC holds its feed and pauses, the controller holds on the stale CNC), LinuxCNC's
 estop while cutting; each with the contact, the nozzle's fall after the fault, its lift, the
@@ -211,7 +211,7 @@ def headless_rows() -> None:
                          params=params, edge=True)
         for sc in ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1'):
             headless(f'seed edge scenario {sc}{label}', scenario=sc, params=params, edge=True)
-    # off the sheet and back: the hold must end by itself (issue 24: no latched FAULT)
+    # off the sheet and back: the hold must end by itself (no latched FAULT)
     for cov in (0.7, 0.5, 0.3):
         headless(f'edge: {1 - cov:.0%} off the sheet for 1.5 s, then back',
                  [{'t_s': 1.5, 'do': 'coverage', 'value': cov, 'ramp_s': 0.2},
@@ -353,7 +353,7 @@ is established, which takes more than 5 s; the row fails where it was not yet)."
 LINUXCNC_FAULTS = (('kill-linuxcnc', 'LinuxCNC SIGKILLed while cutting'),
                    ('kill-bridge', 'LinuxCNC bridge SIGKILLed while cutting'),
                    ('estop', 'LinuxCNC estop while cutting'))
-"""The LinuxCNC rows (issue 42): ``bringup --cnc linuxcnc --fault KIND@SECONDS``."""
+"""The LinuxCNC rows: ``bringup --cnc linuxcnc --fault KIND@SECONDS``."""
 
 
 def linuxcnc_rows(at_s: float = 2.5) -> int:
@@ -824,7 +824,7 @@ def live_rows(load_s: float, clients_s: float) -> dict:
             b.wait()
         live.close()
 
-    # L7 (issue 21): 20 nodes with parameter clients, 20 processes, appear and vanish while the
+    # L7: 20 nodes with parameter clients, 20 processes, appear and vanish while the
     # axis follows; rounds of 20 at once (the next once all of a round ended), at least two,
     # for clients_s
     live = Live('fault_probe_7')
@@ -907,7 +907,7 @@ def live_rows(load_s: float, clients_s: float) -> dict:
     return out
 
 
-# ---- the CiA 402 path on the test bus (issue 41): the driver node, the emulated drive -------
+# ---- the CiA 402 path on the test bus: the driver node, the emulated drive ------------------
 CANOPEN_PERIOD_S = 0.001  # the test bus does not hold 0.5 ms free-running on 2 cores
 ROGUE = r"""
 import random, sys, time

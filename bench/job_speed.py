@@ -4,7 +4,7 @@ Runs shipped jobs (``ladrc_sim.job.runner.run_job``, the same path as ``ladrc jo
 follow controller, geometry included (coverage, true gap, kerfs and parts every tick; the
 sheet's raster fill before the loop is not counted), best of ``--repeat`` runs. A second,
 timed pass wraps the controller's ``step`` to show its share of the loop (the wrapper's own
-cost is in that pass only). Target (issue 23): ``realtime_x >= 20`` on one core.
+cost is in that pass only). Target: ``realtime_x >= 20`` on one core.
 
 Run: python bench/job_speed.py [--jobs plate_holes thin_warped] [--repeat 2]
 The last line of output is one JSON object: ``jobs`` (per job: ``job_time_s``, ``wall_s``,

@@ -1,4 +1,4 @@
-"""The notes' experiments as the notes ran them, beside the notes' figures (issue 13).
+"""The notes' experiments as the notes ran them, beside the notes' figures.
 
     scripts/in-env python bench/seed_experiments.py [--jobs 2] [--quick]
 

@@ -76,7 +76,7 @@ MEASURED = {
     'normal_busy': {'late_p50': 0.013, 'late_p99': 0.051, 'late_p999': 0.630, 'late_max': 7.94,
                     'over_2': 19, 'over_5': 1, 'over_10': 0, 'over_50': 0,
                     'foreign_cpu': 0.01},
-    # The run of 2026-12-01 (the loop then spun an EventsExecutor, 20 s per condition, other
+    # An earlier run (the loop then spun an EventsExecutor, 20 s per condition, other
     # sessions' node sets running beside it): fifo_idle max 5.37 ms, fifo_busy 1.15 ms,
     # normal_idle 17.04 ms, normal_busy 15.66 ms. Every SCHED_FIFO stall > 2 ms in either run
     # was the loop thread neither on a CPU nor waiting for one (asleep past its deadline: the
@@ -93,9 +93,9 @@ MEASURED = {
 # test session runs for minutes, and the largest stalls grow with the run length; 2x is the
 # margin between "the worst seen" and "the worst a test may meet" this bench can justify
 # without a longer run (rerun with a larger --seconds to tighten it).
-STALL_MAX_S = 0.012  # max 5.37 ms (fifo_idle, 2026-12-01) -> 6 ms x 2
+STALL_MAX_S = 0.012  # max 5.37 ms (fifo_idle, the earlier run) -> 6 ms x 2
 # The same for the normal scheduler (what a loop meets when SCHED_FIFO is refused).
-STALL_MAX_NORMAL_S = 0.036  # max 17.04 ms (normal_idle, 2026-12-01) -> 18 ms x 2
+STALL_MAX_NORMAL_S = 0.036  # max 17.04 ms (normal_idle, the earlier run) -> 18 ms x 2
 
 PERIOD_NS = 500_000
 WARMUP_S = 1.0

@@ -1,4 +1,4 @@
-"""Batch closed loop speed: N parameter sets x the batchable scenario library (issue 14).
+"""Batch closed loop speed: N parameter sets x the batchable scenario library.
 
     scripts/in-env python bench/sweep_speed.py [--sets 1000] [--quick]
 

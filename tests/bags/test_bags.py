@@ -520,7 +520,7 @@ def test_report_in_small_slices_equals_one_slice(run_bag, tmp_path, monkeypatch)
 def test_segment_close_cost_does_not_grow_with_the_segments(tmp_path, monkeypatch):
     """Closing the 1500th file renders as much YAML as closing the 20th did.
 
-    The work, not a time (a timed ratio failed under load, 2026-12-02): every
+    The work, not a time (a timed ratio is not stable under load): every
     ``yaml.safe_dump`` of a close is counted in characters. A rewrite that renders every closed
     file's entry again (as before) dumps ~150 characters more per file already closed; the
     writer dumps the new file's entries and the constant-size head only. Speed:

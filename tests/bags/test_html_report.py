@@ -1,4 +1,4 @@
-"""The zoomable HTML report (issue 43, item 3): its pyramid, its streams, the page in Chromium.
+"""The zoomable HTML report: its pyramid, its streams, the page in Chromium.
 
 Pure Python: the min/max pyramid keeps a single-sample spike at every level and its levels
 equal numpy's min/max over each bucket (fed in slices or whole); the streams give back every

@@ -402,10 +402,10 @@ def test_the_speed_bound_ignores_one_late_sample_and_stops_a_runaway(monkeypatch
     """The prober's speed bound (conform_node.SpeedGuard), fed 2 kHz encoder samples.
 
     A true 6 mm/s under an 8 mm/s bound, the driver stalled for 8 ms between taking sample 100
-    and sending it (as a fresh-clone make test had it): sample 100 arrives 8 ms late with its
+    and sending it (as a loaded machine does): sample 100 arrives 8 ms late with its
     old position, the cycles of the stall send nothing (the driver catches up silently), and the
     one window that starts on sample 100 reads 10.8 mm/s. The run goes on; a judge of single
-    windows (the kit before 2026-12-04, persistence 0) aborts there. An axis at 12 mm/s is
+    windows (persistence 0) aborts there. An axis at 12 mm/s is
     stopped within 10 + 2 ms + a sample.
     """
     from ladrc_tools.node import conform_node

@@ -1,4 +1,4 @@
-"""The excitation signal and its player (issue 15, item 2): bounds, return to start, safety."""
+"""The excitation signal and its player: bounds, return to start, safety."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""``ladrc identify`` (issue 15, item 2): recovers the sim's axis and sensor from bags.
+"""``ladrc identify``: recovers the sim's axis and sensor from bags.
 
 The bags come from ``ladrc excite`` (the excitation player on the headless sim, written by the
 headless bag writer), with the sim's axis b0, T1 and dead time and the sensor's lag varied

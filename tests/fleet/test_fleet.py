@@ -1,4 +1,4 @@
-"""The fleet tools: provenance, the generated fleet, flags, tables, cache, bad bags (issue 26).
+"""The fleet tools: provenance, the generated fleet, flags, tables, cache, bad bags.
 
 One small fleet is generated once (4 machines x 3 days x 1 bag, seed 7: not the seed the
 rules' limits were set on) and read on a local Dask cluster of one worker process.

@@ -219,7 +219,7 @@ def test_hold_at_the_next_segment_waits_for_the_segment_and_release_now_ends_it(
 
 
 def test_a_cnc_gone_silent_lifts_the_head_once_and_holds_it_there():
-    """cnc.stale_lift_s (issue 42: the bridge killed): held first, then lifted, never down."""
+    """cnc.stale_lift_s (the CNC's bridge killed): held first, then lifted, never down."""
     loop, cnc = following()
     c = loop.c
     p = c.params.cnc

@@ -1,4 +1,4 @@
-"""The seeds' experiments as the seeds ran them (issue 13): target wave, seed-faithful steps."""
+"""The seeds' experiments as the seeds ran them: target wave, seed-faithful steps."""
 
 from __future__ import annotations
 

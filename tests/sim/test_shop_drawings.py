@@ -1,4 +1,4 @@
-"""The shop's drawings (issue 42, part 4): DXFs from other tools read as they are.
+"""The shop's drawings: DXFs from other tools read as they are.
 
 * an R12 (AC1009) file as a laser CAM writes it: no HEADER section, so no ``$INSUNITS``
   (ezdxf fills its default, metres, into the document: the reader must not take it for the

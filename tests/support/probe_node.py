@@ -3,11 +3,11 @@
 Started by :class:`rosnodes.Probe` as the nodes are (``start_new_session``, the test's
 environment: ROS_DOMAIN_ID and localhost discovery from tests/ros/conftest.py), so rclpy runs
 outside pytest, as launch_testing runs it: a crash in rclpy ends this process, and the test
-reports its exit code and output instead of dying with it (issue 21).
+reports its exit code and output instead of dying with it.
 
-Why a process (root cause of the segmentation fault in ``destroy_node`` that ended pytest
-runs, issue 21): a race in Fast DDS 2.14's shared-memory transport, not in the project's use of
-rclpy and not rclpy issue 1644 (no EventsExecutor involved). A publisher SIGKILLed while it
+Why a process (the segmentation fault in ``destroy_node`` that could end a pytest run): a race
+in Fast DDS 2.14's shared-memory transport, not in the project's use of rclpy and not
+ros2/rclpy#1644 (no EventsExecutor involved). A publisher SIGKILLed while it
 holds a subscriber's shared-memory port lock leaves the lock held; about a second later Fast
 DDS replaces the port and frees the old segment, and a participant torn down in that window
 (the last ``destroy_node`` of a context) waits on a mutex in the freed segment and crashes.

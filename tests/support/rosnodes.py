@@ -4,7 +4,7 @@ The environment (ROS_DOMAIN_ID, localhost discovery) comes from tests/ros/confte
 process started here is killed at teardown by :class:`NodeProcesses`. The test process itself
 uses no rclpy: :class:`Probe` is the client of tests/support/probe_node.py, a process of its own
 (as launch_testing runs its test nodes), so a crash in rclpy is that process' crash, reported
-with its exit code and output, and the test session goes on (issue 21).
+with its exit code and output, and the test session goes on.
 """
 
 from __future__ import annotations

@@ -32,9 +32,8 @@ tests/test_contract_once.py fails when a QoS profile is made anywhere else.
   input KEEP_LAST 100, so that a foreign command (refused by the commander lock) cannot
   supersede the commander's answer. A lock-step writer's node does not go down before its
   readers have acknowledged every message (:func:`wait_acknowledged`): a reliable writer
-  repairs only while it exists, and a sim that exited at the end of its scenario while the
-  recorder lagged (a loaded machine) took the run's last 13 capacitive samples with it
-  (a fresh-clone ``make test``, 2026-12-04).
+  repairs only while it exists, so a sim that exited at the end of its scenario while the
+  recorder lagged (a loaded machine) would take the run's last samples with it.
 
 A driver for the real axis uses the same profiles.
 """

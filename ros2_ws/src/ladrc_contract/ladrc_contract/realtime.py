@@ -81,10 +81,10 @@ def no_huge_pages() -> bool:
     numpy advises the kernel to back every array of 4 MB or more with huge pages
     (``madvise(MADV_HUGEPAGE)``), and with the kernel's default ``defrag`` setting (``madvise``)
     a page fault in such an array compacts memory on the spot until a 2 MB page is free. A job's
-    sheet raster is such an array: the sim node's loop stalled for 7-30 ms at a time, ten
-    seconds into a free-running job, the follow node faulted on stale input and the job stopped
-    (2026-12-04, ``bringup --job plate_holes``: 4 runs of 4 with ``lock_memory``; with numpy's
-    advice off, the job ran to its end). A loop process does not need huge pages: ordinary
+    sheet raster is such an array: compaction stalls the sim node's loop for milliseconds to
+    tens of milliseconds at a time, the follow node faults on stale input and a free-running job
+    stops (``bringup --job plate_holes`` with ``lock_memory``; with numpy's advice off, the job
+    runs to its end). A loop process does not need huge pages: ordinary
     pages, locked or not, never stall on compaction. numpy's own switch (read from
     ``NUMPY_MADVISE_HUGEPAGE`` when numpy is imported, which is before any node's main runs).
     """

@@ -260,8 +260,8 @@ _WARM: list[bool] = []
 def warm_up() -> None:
     """Make the first :func:`fitted_gain` call here, not in the loop (once per process).
 
-    LAPACK's first call starts its thread pool and workspaces: 11 ms on this VM with memory
-    locked (the follow node's ``lock_memory``), 46 ms under load, against 0.2 ms after.
+    LAPACK's first call starts its thread pool and workspaces, tens of times slower than a
+    later call: done once at start-up, off the tick path.
     """
     if not _WARM:
         t = [i * 0.0005 for i in range(40)]

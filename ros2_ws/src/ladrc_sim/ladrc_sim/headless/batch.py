@@ -1,6 +1,6 @@
 """The closed loop of N controllers at once: one scenario, one axis per parameter set (numpy).
 
-For sweeps over parameter sets (issue 14): the state machine is not needed inside a sweep, so
+For sweeps over parameter sets: the state machine is not needed inside a sweep, so
 each row starts followed (the nozzle at the gap that reads the target, the controller reset
 there) and holds the scenario's first target. The world is the headless runner's
 (:mod:`.runner`), drawn from the same seed in the same order, so one row sees what a scalar

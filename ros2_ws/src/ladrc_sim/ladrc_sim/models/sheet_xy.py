@@ -131,8 +131,8 @@ class SheetXY:
     def prepare(self, regions: list[Polygon]) -> None:
         """Rasterise regions that will drop out later now (a job's parts, before its loop).
 
-        A part's scan-line fill took up to 27 ms on this VM: inside a live 2 kHz loop that is
-        a stall the controller sees as stale input. Prepared, a drop is a masked write.
+        A part's scan-line fill takes tens of milliseconds: inside a live 2 kHz loop that is a
+        stall the controller sees as stale input. Prepared, a drop is a masked write.
         """
         for region in regions:
             self._prepared[id(region)] = (region, self._cells(region))

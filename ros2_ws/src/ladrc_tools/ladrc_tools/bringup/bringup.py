@@ -473,7 +473,7 @@ def main(argv: list[str] | None = None) -> int:
                     '(docs/live-view.md)')
     ap.add_argument('--view-port', type=int, default=VIEW_PORT,
                     help=f'with --view: its port on 127.0.0.1 [{VIEW_PORT}]')
-    # LinuxCNC as the job's CNC (issue 42): bringup/linuxcnc_run.py, docs/linuxcnc.md
+    # LinuxCNC as the job's CNC: bringup/linuxcnc_run.py, docs/linuxcnc.md
     ap.add_argument('--cnc', default='sim', choices=['sim', 'linuxcnc'],
                     help="with --job: the job's CNC: the simulated one (default) or 'linuxcnc' "
                     '(LinuxCNC runs the G-code, the bridge speaks the CNC interface; '

@@ -1,4 +1,4 @@
-"""Capacitive calibration (issue 15, item 3): the sweep to contact and the raw -> gap table.
+"""Capacitive calibration: the sweep to contact and the raw -> gap table.
 
 Pure (no rclpy). Three parts in three modules, each used by the node
 (``node/calibrate_node.py``), the ``ladrc calibrate`` command and the tests:

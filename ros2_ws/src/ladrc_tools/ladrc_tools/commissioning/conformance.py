@@ -1,4 +1,4 @@
-"""Driver conformance (issue 15 item 1): recorded samples in, pass/fail + figure out.
+"""Driver conformance: recorded samples in, pass/fail + figure out.
 
 The kit's front, split by concern: :mod:`.conformance_recording` (what the live prober recorded
 of a driver, no rclpy), :mod:`.conformance_rules` (tolerances, the rule table,

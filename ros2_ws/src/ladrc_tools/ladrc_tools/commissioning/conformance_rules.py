@@ -1,4 +1,4 @@
-"""The conformance rules (issue 15): their tolerances, their table, and :func:`evaluate`.
+"""The conformance rules: their tolerances, their table, and :func:`evaluate`.
 
 Pure (no rclpy): :func:`evaluate` judges a :class:`~.conformance_recording.Recording` rule by rule
 against the contract (docs/interfaces.md) with the documented tolerances of

@@ -240,8 +240,8 @@ def rule_stamp_age(rec: Recording, tol: Tolerances) -> RuleResult:
 
     The median is the driver's systematic latency (it adds to the loop's dead time); the
     share older than the controller's ``stamp_tolerance_s`` (10 ms) is what it would throw
-    away. A stall of the host delivers a backlog at once (seen: 250 ms once in a 6 s run on a
-    loaded 2-core VM), so a high percentile is no fair test of a short run.
+    away. A stall of the host delivers a backlog at once (a loaded host stalls for hundreds of
+    milliseconds now and then), so a high percentile is no fair test of a short run.
     """
     parts, worst, ok = [], 0.0, True
     for topic, s in _topics(rec):

@@ -1,4 +1,4 @@
-"""Excitation of the Z axis for identification: a bounded PRBS and a log chirp (issue 15, item 2).
+"""Excitation of the Z axis for identification: a bounded PRBS and a log chirp.
 
 An :class:`Excitation` is a whole velocity-command profile, one value per controller tick
 (``h_s``, 0.5 ms), meant to be played around a safe height (far above the sheet) by a driver

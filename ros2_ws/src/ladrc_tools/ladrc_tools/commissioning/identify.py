@@ -1,4 +1,4 @@
-"""Identification of the Z axis and the capacitive sensor from a bag (issue 15, item 2).
+"""Identification of the Z axis and the capacitive sensor from a bag.
 
 **Axis** (notes §1.1): ``G(s) = b0 e^(−sτ) / (s (T1 s + 1))`` from the velocity command to the
 encoder position. Data: ``axis/velocity_command`` (``velocity_mm_s``, ``enable``: a disabled

@@ -1,4 +1,4 @@
-"""Identification of the capacitive sensor from a bag: gain, lag and noise (issue 15, item 2).
+"""Identification of the capacitive sensor from a bag: gain, lag and noise.
 
 **Sensor** (readings against the axis position over a flat sheet, ``flat_window_s``): the
 reading is the gap through a first-order lag plus noise (``ladrc_sim/models/sensor.py``),

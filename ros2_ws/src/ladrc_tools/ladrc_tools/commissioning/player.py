@@ -1,4 +1,4 @@
-"""Excitation player: a "controller" that plays an :class:`.Excitation` (issue 15, item 2).
+"""Excitation player: a "controller" that plays an :class:`.Excitation`.
 
 It has the duck type the headless runner (``ladrc_sim.headless.runner.run``) and the sim node's
 bridge take from a controller: ``step(tick) -> velocity_mm_s`` and ``command(name, **kw)``

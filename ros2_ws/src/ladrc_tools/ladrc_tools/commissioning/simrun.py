@@ -1,4 +1,4 @@
-"""Identification bags from the headless sim: an excitation played on a scenario (issue 15, 2).
+"""Identification bags from the headless sim: an excitation played on a scenario.
 
 ``ladrc excite`` (and the tests) use this: a scenario (the built-in :data:`IDENTIFY_SCENARIO`,
 a scenario file or a shipped name) as a dict, with ``--set key=value`` overrides

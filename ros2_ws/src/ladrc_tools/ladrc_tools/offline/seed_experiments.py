@@ -1,4 +1,4 @@
-"""The notes' experiments run as the notes ran them (issue 13; notes §5.3, §1.2, §4, §5.2).
+"""The notes' experiments run as the notes ran them (notes §5.3, §1.2, §4, §5.2).
 
 Each function runs one experiment headless (``ladrc_sim.headless.runner.run`` with the
 :class:`FollowController`) and returns plain rows; ``bench/seed_experiments.py`` prints them
