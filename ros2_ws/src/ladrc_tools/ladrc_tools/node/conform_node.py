@@ -91,10 +91,10 @@ class SpeedGuard:
 
     The speed must stay beyond the bound for ``SPEED_PERSIST_NS`` of windows before the run
     aborts: one sample the driver sent late (its process stalled between taking the position
-    and sending it, milliseconds on a loaded machine) starts a window with an old
-    position, and that one window reads up to (10 ms + stall) / 10 ms x the true speed (10.94
-    mm/s for 6 mm/s after an 8 ms stall); the next window starts on the caught-up sample. A runaway axis stays
-    beyond the bound and is stopped 2 ms later than on its first window.
+    and sending it, milliseconds on a loaded machine) starts a window with an old position,
+    and that one window reads up to (10 ms + stall) / 10 ms x the true speed (10.94 mm/s for
+    6 mm/s after an 8 ms stall); the next window starts on the caught-up sample. A runaway axis
+    stays beyond the bound and is stopped 2 ms later than on its first window.
     """
 
     def __init__(self, max_speed_mm_s: float) -> None:
