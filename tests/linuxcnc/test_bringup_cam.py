@@ -60,7 +60,7 @@ def test_a_sheetcam_program_runs_to_its_end_one_pierce_per_touchoff(tmp_path, ro
     assert [c['pierce']['from'] for c in bridge['contours']] == ['program'] * 3
     first = bridge['contours'][0]
     assert first['pierce']['heights_mm'] == pytest.approx([0.15 * MM])
-    assert first['pierce']['dwell_s'] == pytest.approx([0.4])
+    assert first['pierce']['dwell_s'] == pytest.approx([0.2])
     assert first['pierce']['cut_gap_mm'] == pytest.approx(0.06 * MM)
     # N0130 X1.75 Y1.5 (inches) on the sheet: the job's dxf_origin_mm [20, 20] as G54
     assert first['pierce_xy_mm'] == pytest.approx([1.75 * MM + 20.0, 1.5 * MM + 20.0],

@@ -144,9 +144,9 @@ def test_linuxcncs_interpreter_reads_the_sheetcam_program_to_its_end(tmp_path):
     arcs = [m for m in moves if m[0] == 'ARC']
     assert len(arcs) == 6 and all(m[5] == 3 for m in arcs)
     assert [m[1] for m in arcs] == [16, 17, 18, 27, 28, 29]
-    # inches: the outline's corner X5.0 Y2.5 (program coordinates, no offset in the reader)
-    assert at[40][2:4] == pytest.approx([5.0 * MM, 2.5 * MM])
-    assert at[40][0] == 'G1' and at[40][4] == pytest.approx(100 * MM)  # F100 in/min
+    # inches: the outline's corner X4.75 Y2.0 (program coordinates, no offset in the reader)
+    assert at[40][2:4] == pytest.approx([4.75 * MM, 2.0 * MM])
+    assert at[40][0] == 'G1' and at[40][4] == pytest.approx(150 * MM)  # F150 in/min
 
 
 def test_a_touchoff_value_out_of_range_is_linuxcncs_error_on_its_line(tmp_path):
@@ -185,8 +185,8 @@ def test_each_touchoff_call_is_one_cut_request_with_its_values_in_mm(tmp_path):
         filt = next(e for e in events if e['event'] == 'filter')
         assert Path(filt['output']).read_text().splitlines() == filtered(
             SHEETCAM.read_text()).splitlines()  # line for line: LinuxCNC's lines are the file's
-        expected = [((1.75, 1.5), (0.15, 0.4, 0.06)), ((1.5, 3.2), (0.12, 0.3, 0.05)),
-                    ((3.0, 0.25), (0.15, 0.4, 0.06))]
+        expected = [((1.75, 1.5), (0.15, 0.2, 0.06)), ((1.5, 3.2), (0.12, 0.15, 0.05)),
+                    ((3.0, 0.25), (0.15, 0.2, 0.06))]
         assert len(requests) == len(TOUCHOFF_LINES) == 3
         for s, ((x, y), (h, t, cut)) in zip(requests, expected, strict=True):
             assert (s.x_mm, s.y_mm) == pytest.approx((x * MM + offset[0], y * MM + offset[1]),
