@@ -17,7 +17,8 @@ end before the open: an undefined subroutine, a refused ``o<touchoff>`` value) o
 on stderr (``bringup: LinuxCNC ...: TEXT (line N of FILE)``), the figures' ``finished`` false,
 ``aborted`` and ``linuxcnc.program_error`` (text, line, when, seconds after the open or the
 cycle start) saying it, exit 1. A program that cut nothing (0 pierces) is not finished either
-(the bridge's rule): one line, exit 1.
+(the bridge's rule), nor one whose run pierced fewer times than LinuxCNC's interpreter counted
+cut requests in it before the run (LinuxCNC went idle before its end): one line, exit 1.
 
 A G-code job's ``dxf_origin_mm`` (where its program's (0, 0) lies on the sheet) is LinuxCNC's
 G54 work offset; a post-processed program is written in the sheet's coordinates (offset 0).
