@@ -329,3 +329,19 @@ def test_a_dxf2gcode_program_runs_to_its_end(tmp_path):
         assert (end.x_mm, end.y_mm) == pytest.approx(home, abs=1e-3)
     finally:
         lc.stop()
+
+
+def test_the_bring_ups_verdict_on_the_displays_events():
+    from ladrc_tools.bringup.linuxcnc_run import early_end, program_error
+
+    events = [{'t': 10.0, 'event': 'filter'}, {'t': 10.5, 'event': 'check', 'cut_requests': 3},
+              {'t': 12.0, 'event': 'run'}, {'t': 15.0, 'event': 'idle', 'line': 17}]
+    assert early_end(events, {'pierces': 1}) and not early_end(events, {'pierces': 3})
+    assert program_error(events) is None
+    refused = [*events[:2], {'t': 10.2, 'event': 'error', 'text': 'x (line 7)',
+                             'program_error': 'x', 'line': 7, 'when': 'open', 'program': 'p'}]
+    assert program_error(refused) == {'text': 'x', 'line': 7, 'when': 'open', 'program': 'p',
+                                      'after_s': 0.2}
+    stopped = [*events[:3], {'t': 14.5, 'event': 'error', 'text': 'y', 'program_error': 'y',
+                             'line': 6, 'when': 'run', 'program': 'p'}]
+    assert program_error(stopped)['after_s'] == 2.5
