@@ -1,9 +1,8 @@
 """The launch files, run against stand-ins of launch / launch_ros (not installable from PyPI).
 
 The stand-ins record what the launch files build: their arguments (each with a description),
-the nodes with parameters passed the launch_ros way, and the stop chain. (They were also run
-with the real launch and launch_ros built from their jazzy sources in a scratch folder:
-docs/bags-and-reports.md, "Launch".)
+the nodes with parameters passed the launch_ros way, and the stop chain (docs/follow-node.md,
+"Launch files").
 """
 
 from __future__ import annotations

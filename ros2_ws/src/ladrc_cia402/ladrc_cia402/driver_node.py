@@ -196,7 +196,7 @@ class DriverNode(LoopNode):
             reasons = [r for r in (self.lock.fault_reason, self.watchdog_reason) if r]
         reasons += [s.fault_reason] if s.fault_reason else []
         fault = bool(reasons)
-        # the raw value of an analog amplifier is its count (docs/cia402.md, "Units")
+        # the raw value of an analog amplifier is its count (docs/cia402.md, "The device file")
         if self.publish_gap:
             self.pub_gap.publish(self.out_gap.pack(
                 sec, nsec, seq=self.gap_seq, gap_mm=math.nan if self.p.raw_only else s.gap_mm,
