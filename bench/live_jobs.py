@@ -7,7 +7,7 @@ not equal to the headless one (the CNC reads the controller's status a cycle or 
 transport adds a tick): the figures are compared, not the samples (lock step is the bit-for-bit
 check: tests/ros/test_lockstep.py). The bags go to a temporary folder and are deleted.
 
-Must hold (issues 23, 24): every job runs to its end; 0 contacts except the declared tipping
+Must hold: every job runs to its end; 0 contacts except the declared tipping
 part's (which ends in the retract and a feed hold); ``min_gap_over_target_cutting`` >= 0.7.
 
 ``--separate-cnc``: the CNC node plays the CNC (three processes; the headless run then is

@@ -1,4 +1,4 @@
-"""Scheduling stalls of a 2 kHz Python loop on this machine class, with and without SCHED_FIFO.
+"""Scheduling stalls of a 2 kHz Python loop on the host, with and without SCHED_FIFO.
 
     scripts/in-env python bench/stalls.py [--seconds 20] [--conditions fifo_idle,fifo_busy,...]
 
@@ -54,7 +54,7 @@ import sys
 import threading
 import time
 
-# Figures of a full run (``--seconds 20``, the four conditions in order) on this machine class:
+# Figures of a full run (``--seconds 20``, the four conditions in order) on the machine class:
 # a Firecracker VM, 2 vCPUs (Intel Xeon), Linux 6.18 PREEMPT_DYNAMIC, RT throttling
 # 950 ms / 1 s, root (CAP_SYS_NICE: SCHED_FIFO granted). Lateness in ms. A shared machine:
 # other sessions' processes ran too (``foreign_cpu`` = CPUs' worth of time used by processes

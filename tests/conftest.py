@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # which does not put test folders on sys.path).
 SRC = ROOT / 'ros2_ws' / 'src'
 # bench/: the real-time tests take their bounds from bench/stalls.py (STALL_MAX_S), the script
-# that measured this machine class's scheduling stalls.
+# that measures the host's scheduling stalls.
 for path in (SRC / 'ladrc_cia402', SRC / 'ladrc_linuxcnc', SRC / 'ladrc_follow', SRC / 'ladrc_sim',
              SRC / 'ladrc_tools', ROOT / 'tests' / 'support', ROOT / 'bench'):
     if str(path) not in sys.path:

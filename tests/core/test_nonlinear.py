@@ -46,9 +46,9 @@ def test_functions_odd_exact_and_batch_equals_scalar(fn, args, exact):
     arr = fn(ARRAY, E, *args)
     scal = np.array([fn(SCALAR, float(e), *args) for e in E])
     # One implementation on both backends. Only + - * / and sqrt are correctly rounded; numpy's
-    # SIMD exp/pow/arctan may differ from libm's in the last bit on some processors (seen on
-    # this machine class), so equality is to rounding, not bit for bit. The LADRC tick uses
-    # none of these functions, so its batch N = 1 stays bit-exact (tests/core/test_ladrc.py).
+    # SIMD exp/pow/arctan may differ from libm's in the last bit on some processors, so
+    # equality is to rounding, not bit for bit. The LADRC tick uses none of these functions,
+    # so its batch N = 1 stays bit-exact (tests/core/test_ladrc.py).
     np.testing.assert_allclose(arr, scal, rtol=4e-16 * 4, atol=1e-15)
     np.testing.assert_array_equal(fn(ARRAY, -E, *args), -arr)   # odd
     if exact is not None:

@@ -219,8 +219,8 @@ def test_a_recorder_behind_at_the_end_of_a_run_loses_nothing(tmp_path):
     """The sim does not go down before every reader has its messages (qos.wait_acknowledged).
 
     The recorder is stopped (SIGSTOP) for the whole run and continued only after the sim has
-    played its scenario: a reliable writer repairs only while it exists. Before the wait, a
-    fresh-clone ``make test`` lost the last 13 samples of a lock-step run this way.
+    played its scenario: a reliable writer repairs only while it exists, so without the wait
+    the bag would lose the run's last samples.
     """
     from ladrc_tools.bags.bag import open_bag
     from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
@@ -229,9 +229,8 @@ def test_a_recorder_behind_at_the_end_of_a_run_loses_nothing(tmp_path):
     scenario.write_text(SHORT)
     bag, logs = tmp_path / 'bag', tmp_path / 'logs'
     specs = node_specs(str(scenario), bag=str(bag), lockstep=True, paced=False)
-    # The repair of 3 s of five 2 kHz topics to the continued recorder took more than the
-    # sim's default 10 s end wait in a loaded fresh-clone run (the bag lost axis/feedback's last
-    # 439 samples, the sim said so): the wait, not its length, is the subject here.
+    # The repair of 3 s of five 2 kHz topics to the continued recorder can take more than the
+    # sim's default 10 s end wait on a loaded machine: the wait, not its length, is the subject.
     next(s for s in specs if s.name == 'ladrc_sim').parameters['lockstep_timeout_s'] = 120.0
     up = Bringup(specs, isolated_env(int(os.environ['ROS_DOMAIN_ID'])), logs)
     try:

@@ -207,8 +207,8 @@ def test_the_view_of_a_lockstep_run_equals_its_bag(tmp_path):
                 continue
             assert np.nanmin(live) == np.nanmin(ref) and np.nanmax(live) == np.nanmax(ref), (
                 b, f)
-    # (the buckets with a sample the best-effort reader lost are left out: 31 of 200 in a quiet
-    # fresh-clone run with the other lane busy; the comparison needs enough whole ones)
+    # (the buckets with a sample the best-effort reader lost are left out, a sixth of them
+    # beside a busy machine; the comparison needs enough whole ones)
     assert whole >= 0.5 * len(np.unique(bucket)), (whole, len(np.unique(bucket)))
     # every fault reason of the bag arrives, on the status and in the log
     reasons = {r for r in st['fault_reason'].tolist() if r}

@@ -47,9 +47,8 @@ back: a NaN in a message survives the trip. Operations:
 QoS names: 'reader' (best effort, keep last 1000: the contract's 2 kHz topics), 'latched'
 (reliable, transient local, keep last 100), 'reliable' (reliable, volatile, keep last 20 000:
 lock step's writers keep 10 s, and so must the probe's reader, which only the probe's own
-takes empty: 1 000 lost 2 180 truth messages in a quiet fresh-clone run when the probe
-stalled a second beside lane 2's process starts), or an integer depth (reliable, volatile,
-keep last n, as rclpy reads an integer).
+takes empty: a depth of 1 000 loses messages when the probe stalls a second), or an integer
+depth (reliable, volatile, keep last n, as rclpy reads an integer).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ thread takes the raw CDR bytes from the reader when it wants them (at its deadli
 parameters, timers) is served by an executor on another thread, which does not see these
 readers (:class:`LoopNode`).
 
-Why (docs/follow-node.md, "The loop"): on this machine class a wake-up costs tens of
+Why (docs/follow-node.md, "The loop"): on a VM a wake-up costs tens of
 microseconds, and an executor wakes its thread once per incoming message and builds a Python
 message field by field; the follow node's loop thread spent most of a core in the executor and
 the sim's likewise, so the two 2 kHz processes plus a recorder filled both cores and a SCHED_FIFO

@@ -17,9 +17,9 @@ tests/test_contract_once.py fails when a QoS profile is made anywhere else.
 * The drive's command input: BEST_EFFORT, KEEP_LAST 10 (5 ms at 2 kHz, one watchdog). The drive
   takes every command that arrived since its last cycle, oldest first, and holds the latest one
   its commander lock admits: with depth 1 all writers share one slot, so a commander's command
-  arriving after a foreign one in the same cycle erased it (the foreign commander was seen
-  cycles late: 6 cycles measured in a fresh-clone run) and a second commander's first command
-  erased the first's release (a handover seen as a foreign command).
+  arriving after a foreign one in the same cycle would erase it (the foreign commander seen
+  cycles late) and a second commander's first command would erase the first's release (a
+  handover seen as a foreign command).
 * The recorder reads best effort with a deep history (5 s: it takes in batches).
 * Events (follow commands and parameter sets as applied): RELIABLE, TRANSIENT_LOCAL, KEEP_LAST
   100, so a recorder started late still gets the parameter set in force.

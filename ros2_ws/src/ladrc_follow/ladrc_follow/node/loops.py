@@ -14,9 +14,8 @@ The thread takes the sensor samples straight from the readers (:mod:`.samples`,
 
 Each wait is on the reader whose sample is still missing, and while both are missing on the
 one that came last in the previous cycle (the sim publishes the gap, then the feedback, then
-the step): every wake-up costs tens of microseconds on this machine class, and waiting on all
-readers woke the thread once per sample instead of once per tick (lock step ran at 0.69x real
-time that way).
+the step): a wake-up costs tens of microseconds on a VM, and waiting on all readers would
+wake the thread once per sample instead of once per tick.
 
 An exception on the tick path publishes the zero command and faults the controller
 (:meth:`FollowNode.on_tick_exception`); the thread keeps running.
