@@ -1,4 +1,4 @@
-"""Shipped jobs under LinuxCNC beside the simulated CNC (issue 42, items 5 and 6).
+"""Shipped jobs under LinuxCNC beside the simulated CNC.
 
 Per job (default: every shipped job):
 
@@ -22,7 +22,7 @@ P0.05`` and with ``G61`` (exact stop): the same figures, LinuxCNC's planner's tw
 ``foreign``: a G-code program no one here wrote, as it is (``--gcode-job``, default LinuxCNC's
 own plasmatest.ngc: tests/data/linuxcnc).
 
-Must hold (issue 42): every LinuxCNC run 0 contacts (the tipping part's declared one, which
+Must hold: every LinuxCNC run 0 contacts (the tipping part's declared one, which
 ends in the collision retract, the FAULT and the feed hold, apart) and ``moved_before_ready``
 0; a run to its end: true gap >= 0.7 x the target while cutting.
 

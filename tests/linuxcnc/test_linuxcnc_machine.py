@@ -1,4 +1,4 @@
-"""The shipped LinuxCNC machine and the bridge's HAL component, without ROS (issue 42, 1-2).
+"""The shipped LinuxCNC machine and the bridge's HAL component, without ROS.
 
 LinuxCNC runs headless on the shipped XY configuration (``ladrc_linuxcnc.machine``: one at a
 time, ended by PID, its shared memory cleaned); this test is the component's client, over the
@@ -105,7 +105,7 @@ def test_linuxcnc_waits_holds_and_pauses_for_the_height_controller(linuxcnc):
     # no at-speed for 1.5 s: LinuxCNC must not start the cut
     c.run_until(lambda s: time.monotonic() - t_m3 > 1.5, 10.0, 'waiting')
     still = c.since(t_m3)
-    # (how many samples cover the 1.5 s is the loaded machine's: 30 in one CI run)
+    # (how many samples cover the 1.5 s depends on the machine's load: at least two)
     assert len(still) > 1 and still[-1].t_ns - still[0].t_ns > 1.0e9
     assert all(abs(s.x_mm - 50.0) < 1e-6 and abs(s.y_mm - 20.0) < 1e-6 for s in still)
     assert all(s.current_vel_mm_s == 0.0 for s in still)
@@ -209,7 +209,7 @@ def test_linuxcnc_runs_a_program_no_one_here_wrote(tmp_path):
         # 15 cuts (M3 ... M5). A stall of the component or this client longer than an M5, the
         # rapid and the next M3 hides that cut's request: the client's at-speed from the cut
         # before is still up, and LinuxCNC starts the cut without a new handshake (the gap
-        # docs/linuxcnc.md "Not built / limits" names; 14 of 15 in one loaded CI run). Such a
+        # docs/linuxcnc.md "Not built / limits" names). Such a
         # hidden request shows as a gap in the component's samples with the spindle on both sides
         # and the program line changed; every request outside one was answered.
         pairs = list(zip(c.samples, c.samples[1:], strict=False))

@@ -1,4 +1,4 @@
-"""The post-processor's G-code both ways, and G-code jobs (issue 42, item 3).
+"""The post-processor's G-code both ways, and G-code jobs .
 
 * The post-processor (``ladrc_tools/cam/postprocess.py``) writes what a laser CAM writes for
   LinuxCNC: one ``M3 $0``/``M5 $0`` per contour, ``G64 P`` (``G61`` for exact stop), the

@@ -411,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f'bridge_node: stopped by {type(exc).__name__}: {exc}', file=sys.stderr)
             return 1
         if not node.running and not node.seq.log.aborted and not node.seq.log.finished:
-            node.seq.log.aborted = 'interrupted'
+            node.seq.log.aborted = node.seq.log.aborted_code = 'interrupted'
         text = node.publish_log()
         node.safe_stop()
         late = wait_acknowledged((node.pub_job,), ACK_TIMEOUT_S)

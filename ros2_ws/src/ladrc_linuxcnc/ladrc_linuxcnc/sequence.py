@@ -129,6 +129,14 @@ class BridgeParams(Section):
     lock_memory: bool = param(True, '', 'mlockall the process', runtime=False)
 
 
+ABORT_CODES = ('refused', 'linuxcnc_gone', 'controller_fault', 'program_error',
+               'controller_gone', 'linuxcnc_late', 'estop', 'wait_timeout', 'no_cut',
+               'interrupted')
+"""Why the bridge aborted a job, by kind (``BridgeLog.aborted_code``; the reason says more).
+``linuxcnc_late``, ``linuxcnc_gone`` and ``controller_gone`` are the bridge's link guards: a
+stall of a process can trip them as a crash does (the processes' exit codes tell which)."""
+
+
 @dataclass
 class BridgeLog:
     """What the bridge and LinuxCNC did: the simulated CNC's log keys and LinuxCNC's own."""
@@ -137,6 +145,7 @@ class BridgeLog:
     feed_hold_ticks: int = 0       # samples with motion.feed-hold set (the figures' feed hold)
     waits: list[tuple[str, float]] = field(default_factory=list)
     aborted: str = ''
+    aborted_code: str = ''         # why, as one of ABORT_CODES (the reason's kind)
     finished: bool = False
     contours: list[dict[str, Any]] = field(default_factory=list)
     holds: int = 0                 # M62/M64 P2 holds
@@ -155,6 +164,7 @@ class BridgeLog:
         """Return the log as JSON-ready values (``cnc/job``)."""
         return {'pierces': self.pierces, 'feed_hold_ticks': self.feed_hold_ticks,
                 'waits': [list(w) for w in self.waits], 'aborted': self.aborted,
+                'aborted_code': self.aborted_code,
                 'finished': self.finished, 'contours': self.contours, 'holds': self.holds,
                 'leapfrogs': self.leapfrogs, 'lifts': self.lifts,
                 'fault_holds': self.fault_holds, 'moved_before_ready': self.moved_before_ready,
@@ -244,12 +254,16 @@ class Sequencer:
         if not self.accel_mm_s2 > 0 and isinstance(info.get('max_accel_mm_s2'), (int, float)):
             self.accel_mm_s2 = float(info['max_accel_mm_s2'])
 
-    def abort(self, why: str, now_s: float, pause: bool = True) -> None:
-        """Abort the job: feed hold, beam off, pause (once), the reason logged (first wins)."""
+    def abort(self, why: str, now_s: float, pause: bool = True, code: str = '') -> None:
+        """Abort the job: feed hold, beam off, pause (once), the reason and its code logged.
+
+        The first abort wins; ``code`` is one of :data:`ABORT_CODES`.
+        """
         if self.phase in ('aborted',):
             return
         if not self.log.aborted:
             self.log.aborted = why
+            self.log.aborted_code = code
         self.phase = 'aborted'
         self.at_speed = False
         self.beam_open = False
@@ -260,14 +274,14 @@ class Sequencer:
 
     def refused(self, name: str, message: str, now_s: float) -> None:
         """Abort the job: a follow command was refused (its answer came later)."""
-        self.abort(f'{name} refused: {message}', now_s)
+        self.abort(f'{name} refused: {message}', now_s, code='refused')
 
     def linuxcnc_gone(self, why: str, now_s: float, answers: dict[str, Any] | None = None
                       ) -> list[tuple[str, dict[str, Any]]]:
         """LinuxCNC stopped talking (socket closed, silent): abort, lift; return the commands."""
         if self.phase in ('done', 'aborted'):
             return []
-        self.abort(f'LinuxCNC gone: {why}', now_s, pause=False)
+        self.abort(f'LinuxCNC gone: {why}', now_s, pause=False, code='linuxcnc_gone')
         return self._up_and_stop(answers)
 
     def _up_and_stop(self, answers: dict[str, Any] | None) -> list[tuple[str, dict[str, Any]]]:
@@ -355,24 +369,26 @@ class Sequencer:
                     round(s.x_mm, 3), round(s.y_mm, 3)], 'vel_mm_s': round(
                     s.current_vel_mm_s, 3)}
                 log.fault_holds.append(self.fault_logged)
-            self.abort(f'the height controller faulted: {a.get("fault_reason", "")}', now_s)
+            self.abort(f'the height controller faulted: {a.get("fault_reason", "")}', now_s,
+                       code='controller_fault')
         elif s.flag(p.F_PROGRAM_ERROR) and self.phase not in ('done', 'aborted'):
             self.abort('LinuxCNC stopped the program on an error (its text and line: the '
-                       "display's error)", now_s, pause=False)
+                       "display's error)", now_s, pause=False, code='program_error')
             cmds += self._up_and_stop(answers)
         elif active and not alive:
             why = ('no follow/status from the height controller' if answers is None else
                    f'follow/status {status_age_s * 1e3:.0f} ms old (limit '
                    f'{self.p.controller_timeout_s * 1e3:g} ms)')
-            self.abort(f'the height controller is gone: {why}', now_s)
+            self.abort(f'the height controller is gone: {why}', now_s, code='controller_gone')
         elif (active and delay_s == delay_s
               and delay_s > self.p.sample_delay_limit_s):
             self.abort(f'LinuxCNC samples {delay_s * 1e3:.0f} ms late (limit '
-                       f'{self.p.sample_delay_limit_s * 1e3:g} ms): XY known too late', now_s)
+                       f'{self.p.sample_delay_limit_s * 1e3:g} ms): XY known too late', now_s,
+                       code='linuxcnc_late')
             cmds += self._up_and_stop(answers)
         elif active and (s.flag(p.F_ESTOP) or not s.flag(p.F_MACHINE_ON)):
             self.abort('LinuxCNC estop' if s.flag(p.F_ESTOP) else 'LinuxCNC machine off',
-                       now_s, pause=False)
+                       now_s, pause=False, code='estop')
             cmds += self._up_and_stop(answers)
         # how the FAULT's feed hold went: LinuxCNC's own state shows it
         fl = self.fault_logged
@@ -421,7 +437,8 @@ class Sequencer:
                     self.phase = 'cut'
                 elif now_s - self.pierce_t > self.p.wait_timeout_s:
                     self.abort(f'waited {self.p.wait_timeout_s:g} s for the pierce (contour '
-                               f'{self.contour}, line {s.program_line})', now_s)
+                               f'{self.contour}, line {s.program_line})', now_s,
+                               code='wait_timeout')
                 if not spindle:  # M5 before the pierce was done (a program without a cut)
                     self.phase, self.contour = 'between', 0
                     self.at_speed = self.beam_open = False
@@ -446,7 +463,8 @@ class Sequencer:
                     if self.moved_lift_mm > MOVED_MM:
                         log.moved_during_lift += 1
                 elif now_s - self.t_wait > self.p.wait_timeout_s:
-                    self.abort(f'waited {self.p.wait_timeout_s:g} s for the lift', now_s)
+                    self.abort(f'waited {self.p.wait_timeout_s:g} s for the lift', now_s,
+                               code='wait_timeout')
             if self.phase in ('pierce', 'cut') and log.contours and not log.contours[-1]['line']:
                 log.contours[-1]['line'] = s.program_line  # 0 until the cut's first move
             # a rapid: leapfrog at its start (the controller following)
@@ -480,7 +498,7 @@ class Sequencer:
             if self.ran and not running and self.phase not in ('aborted',):
                 if log.pierces == 0:  # nothing cut: never a finished job
                     self.abort('the program ended without a cut: 0 pierces (no M3, no '
-                               'o<touchoff> call reached)', now_s, pause=False)
+                               'o<touchoff> call reached)', now_s, pause=False, code='no_cut')
                 else:
                     self.phase = 'done'
                     log.finished = True

@@ -32,7 +32,7 @@ from ladrc_contract.schema import param, value_problems
 from shapely.geometry import box
 import yaml
 
-from ..models.axis import ParamError
+from ..models.axis import ParamError, check_fields
 from ..models.sensor import SensorParams
 from ..models.sheet_xy import SurfaceParams
 from .cnc import CncSettings
@@ -48,6 +48,27 @@ from .program import (
 
 class JobError(ValueError):
     """A job file is malformed; the message is one line naming the file and the key."""
+
+
+@dataclass(frozen=True)
+class ContactInjection:
+    """A collision injected at a known point of the job (the job file's ``contact`` section).
+
+    When the CNC has cut its ``nth_cut``-th contour (1: the first it cuts) for ``after_s``, the
+    material in a ``size_mm`` square around the nozzle rises by ``rise_mm`` (as a part tipping
+    up there): the nozzle meets it, whatever the timing of the CNC (simulated or LinuxCNC).
+    """
+
+    nth_cut: int = param(1, '1', 'the contour cut when the material rises: 1 the first the '
+                         'CNC cuts, 2 the second, ...', ge=1)
+    after_s: float = param(0.3, 's', 'cutting time into that contour', ge=0.0, le=600.0)
+    rise_mm: float = param(4.0, 'mm', 'how far the material rises under the nozzle', gt=0.0,
+                           le=20.0)
+    size_mm: float = param(40.0, 'mm', 'side of the square that rises, centred on the nozzle',
+                           gt=1.0, le=500.0)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 @dataclass(frozen=True)
@@ -131,6 +152,7 @@ class Job:
     gcode: Path | None = None  # the user's G-code program (LinuxCNC reads it), instead of dxf
     time_budget: float | None = None  # the job file's time_budget_s, if it gives one
     expect_fault: bool = False  # the run may end in FAULT (a job that provokes one)
+    contact: ContactInjection | None = None  # a collision injected at a known point
 
     def plate(self):
         """Return the plate's outline (a rectangle from the origin)."""
@@ -222,7 +244,7 @@ def _section(cls: type, data: Any, where: str) -> Any:
 _TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
         'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'dxf_origin_mm', 'seed',
         'limits', *(f.name for f in fields(DrawingKeys)), 'gcode', 'time_budget_s',
-        'expect_fault')
+        'expect_fault', 'contact')
 GCODE_TIME_BUDGET_S = 600.0
 """A G-code job's time bound when its file gives no ``time_budget_s``."""
 
@@ -316,7 +338,9 @@ def load_job(path: str | Path) -> Job:
                seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}),
                drawing=drawing, gcode=gcode,
                time_budget=float(budget) if budget is not None else None,
-               expect_fault=expect_fault)
+               expect_fault=expect_fault,
+               contact=(_section(ContactInjection, data['contact'], f'{path}: contact')
+                        if data.get('contact') is not None else None))
 
 
 JOBS_DIR = Path(__file__).resolve().parent / 'jobs'

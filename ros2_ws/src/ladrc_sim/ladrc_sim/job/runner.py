@@ -34,6 +34,7 @@ from ladrc_contract.codes import FollowState, Segment, SubState
 from ladrc_contract.run_log import RunLog
 from ladrc_contract.tick import TickInput
 import numpy as np
+from shapely.geometry import box
 
 from ..models.axis import H_S, Axis, AxisParams
 from ..models.sensor import Sensor, SensorParams, oscillator_hz
@@ -185,6 +186,9 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
     last = 0
     end = JobEnd()
     run_log = RunLog(h)  # every fault with its reason (the job's inputs are fresh every tick)
+    contact = job.contact
+    contact_ticks = max(1, round(contact.after_s / h)) if contact is not None else 0
+    contact_at = [-1, 0, 0]  # contour being cut, cuts started, its ticks cutting
     rows: list[dict] | None = [] if record_internals else None
     wall0 = time.perf_counter()
     for i in range(n):
@@ -209,6 +213,15 @@ def run_job(job: Any, controller: Any, *, max_s: float | None = None,
                 sheet.drop(c.region)
             if progress is not None:
                 progress(k + 1, len(program.contours))
+        if contact is not None:  # the job's injected collision (jobfile.ContactInjection)
+            cutting = view.beam and view.segment == CUT
+            if cutting and view.contour != contact_at[0]:
+                contact_at[:] = [view.contour, contact_at[1] + 1, 0]
+            if cutting and contact_at[1] == contact.nth_cut:
+                contact_at[2] += 1
+                if contact_at[2] == contact_ticks:
+                    half = contact.size_mm / 2.0
+                    sheet.tip(box(x - half, y - half, x + 0.01, y + half), contact.rise_mm)
         z = axis.position_mm
         sensed, true_gap = sheet.under_face(x, y, z)
         cov = sheet.coverage(x, y)

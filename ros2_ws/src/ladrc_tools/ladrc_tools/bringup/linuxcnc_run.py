@@ -28,7 +28,7 @@ Order: LinuxCNC first (homed, the program open: it waits for the height controll
 (zero command), the sim, the recorder, the bridge, then LinuxCNC (by PID, its shared memory
 cleaned: ``ladrc_linuxcnc.machine``).
 
-**Time** (issue 42, item 6). LinuxCNC runs by its own clock: these runs are free-running (lock
+**Time**. LinuxCNC runs by its own clock: these runs are free-running (lock
 step is refused). ``--allowance`` (default: ``config/linuxcnc_allowance.yaml``) widens the
 simulation-side timing guards for these runs only (the sim drive's watchdog, the controller's
 stale-input and stale-CNC limits); ``--allowance none`` runs with the product's values. The
@@ -54,6 +54,7 @@ import tempfile
 import time
 from typing import Any
 
+from ladrc_contract.run_log import verdict as run_verdict
 import yaml
 
 from .bringup import (
@@ -63,6 +64,7 @@ from .bringup import (
     isolated_env,
     job_figures,
     node_specs,
+    run_summary,
 )
 
 FAULT_KINDS = ('kill-linuxcnc', 'kill-bridge', 'estop')
@@ -73,10 +75,10 @@ COMPONENT_PRIORITY = 52
 BRIDGE_PRIORITY = 45
 """SCHED_FIFO of the bridge's HAL component (above the loops: 1 kHz, about 10 % of a core) and
 of its node (below the loops: it waits for nothing of theirs; about 20 %, most of it the
-middleware taking ``follow/status`` at 2 kHz). Measured on this 2-core VM on ``thin_warped``
-(2026-12-07, two runs each): at the normal scheduler a LinuxCNC sample reached the node 71-126
-ms late at p99 (the sim's nozzle then jumps along the path when it comes: 0.67-0.68 x the
-target at the warped corner); at these priorities 18-20 ms (0.70-0.72). With the loops (sim
+middleware taking ``follow/status`` at 2 kHz). At the normal scheduler a LinuxCNC sample can
+reach the node about 100 ms late at p99 on a loaded 2-core machine (the sim's nozzle then jumps
+along the path when it comes, below 0.7 x the target at ``thin_warped``'s warped corner); at
+these priorities about 20 ms (bench/linuxcnc_jobs.py). With the loops (sim
 and follow node, about 0.55-0.6 of a core each) the real-time load stays below the kernel's
 budget (95 % of each CPU, ``sched_rt_runtime_us``), past which it stops every real-time thread
 for up to 50 ms (``RT throttling activated``)."""
@@ -317,8 +319,9 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
              if s.name != 'ladrc_cnc']
     sim = next(s for s in specs if s.name == 'ladrc_sim')
     sim.parameters.update({'figures_file': str(figures_file), **allowance['sim_node']})
+    summary_file = folder / 'run.json'  # the follow node's run: every fault with its code
     next(s for s in specs if s.name == 'ladrc_follow').parameters.update(
-        allowance['follow_node'])
+        {**allowance['follow_node'], 'summary_file': str(summary_file)})
     specs.append(bridge_spec(job, lc.socket_path))
     specs[-1].parameters.update(allowance['bridge'])
     env = isolated_env(args.domain_id)
@@ -392,6 +395,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
         codes = up.stop(['ladrc_follow', 'ladrc_sim', 'ladrc_recorder', 'ladrc_bridge'])
         lc_stop = lc.stop()
     figures = job_figures(figures_file)
+    run = run_summary(summary_file)
     bridge = last_json(log_dir / 'ladrc_bridge.log')
     events = lc.events()
     failed = program_error(events)
@@ -427,11 +431,17 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
         figures['finished'] = False
     elif error:
         verdict = error
+    elif not run:
+        verdict = 'the follow node wrote no run summary'
+    elif not fault and not run_verdict(run, job.expect_fault)[0]:
+        verdict = run_verdict(run, job.expect_fault)[1]
     if verdict:
-        print(f'bringup: {" ".join(verdict.split())}', file=sys.stderr)
+        print(f'bringup: FAILED: {" ".join(verdict.split())}', file=sys.stderr)
+    elif run:
+        print(f'bringup: ok: {run_verdict(run, job.expect_fault)[1]}', file=sys.stderr)
     print(json.dumps({'bag': args.bag, 'exit_codes': codes, 'job': job.name, 'cnc': 'linuxcnc',
                       'allowance': allowance,
-                      **figures, 'linuxcnc': linuxcnc}, default=str))
+                      **figures, 'run': run, 'linuxcnc': linuxcnc}, default=str))
     ok = not verdict and all(c in (0, -2, 130) for n, c in codes.items()
                              if not (fault and n == 'ladrc_bridge'))
     return 0 if ok else 1
