@@ -14,7 +14,10 @@ The controller is duck-typed (:class:`Controller`):
   ``run(..., record_internals=True)``;
 * optionally ``controller.truth(t_s, true_gap_mm, sheet_mm, nozzle_mm, coverage,
   plate_velocity_mm_s)``, called every tick just before ``step`` with the simulated truth
-  (the sim node publishes it as ``sim/truth``; a real controller has no such method).
+  (the sim node publishes it as ``sim/truth``; a real controller has no such method);
+* optionally ``controller.wind_down()``, called once right after the last tick, before the
+  series and metrics are built (the sim node's bridge stops the controller there while its
+  inputs are still live).
 
 Order of one tick ``i`` (``t = i h``): apply the events due; sheet height (precomputed part
 + plate); true gap; sensor and encoder samples; ``step``; the axis integrates the command
@@ -234,6 +237,10 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
     # optional: a drive on a bus takes the scenario's drive events with their error code
     c_drive_event = getattr(controller, 'drive_event', None)
     c_drive_event = c_drive_event if callable(c_drive_event) else None
+    # optional: a controller on the ROS graph (the sim node's bridge) stops the follow at once
+    # after the last tick, while its inputs are still live
+    c_wind_down = getattr(controller, 'wind_down', None)
+    c_wind_down = c_wind_down if callable(c_wind_down) else None
     new_tick = tuple.__new__
     enabled, fault = True, False
     target = math.nan
@@ -361,6 +368,8 @@ def run(scenario: Scenario | str | Path, controller: Any, *, record_internals: b
             pa = -p_k / ((gap if gap > 0.0 else 0.0) + p_g0) if gas_on else 0.0
             p_y, p_v = p00 * p_y + p01 * p_v + pg0 * pa, p10 * p_y + p11 * p_v + pg1 * pa
     wall = time.perf_counter() - wall0
+    if c_wind_down is not None:  # before the series are built: the inputs are still live
+        c_wind_down()
     if fast_axis:
         axis.position_mm, axis.velocity_mm_s = x, v
     sensor._y = s_y

@@ -104,6 +104,7 @@ class DriveBridge:
         self.cmd_source: Identity = ('', 0)  # whose command is held
         self.cycles_by_commander: Counter = Counter()  # drive cycles executed, per source
         self.last_tick = None  # the runner's latest tick (wind_down holds the world at it)
+        self.wind_down_problem = ''  # why the wind-down did not end with an answer
 
     # ---- the runner's hooks -------------------------------------------------------------
     def truth(self, t_s: float, true_gap_mm: float, sheet_mm: float, nozzle_mm: float,
@@ -160,18 +161,19 @@ class DriveBridge:
         return now
 
     def wind_down(self, ticks: int = WIND_DOWN_TICKS, limit_s: float = WIND_DOWN_LIMIT_S
-                  ) -> str:
+                  ) -> None:
         """End a run with the controller stopped before its inputs stop.
 
         Calls ``stop_follow`` and keeps stepping with the world and the axis held at the
         runner's last tick (fresh samples, stamped on), until the call is answered and
         ``ticks`` more steps went out, so the controller commands zero while it still has
-        inputs. Lock step: the answer comes before the first held step. Returns '' or why the
-        controller did not answer within ``limit_s`` of wall time.
+        inputs. Lock step: the answer comes before the first held step. Called by the runner
+        right after its last tick; ``wind_down_problem`` says why the controller did not
+        answer within ``limit_s`` of wall time ('' when it did).
         """
         tick = self.last_tick
         if tick is None:
-            return ''
+            return
         future = self.node.send_follow_command('stop_follow', {})
         if self.lockstep:
             self._await(future.done, 'no answer to the stop_follow service call')
@@ -184,8 +186,9 @@ class DriveBridge:
             if future.done():
                 after += 1
             elif time.monotonic_ns() > end_ns:
-                return f'the controller did not answer stop_follow within {limit_s:g} s'
-        return ''
+                self.wind_down_problem = (f'the controller did not answer stop_follow within '
+                                          f'{limit_s:g} s')
+                return
 
     def step_lockstep(self, tick) -> float:
         """Lock step: publish step k, wait for the command answering k, return it."""

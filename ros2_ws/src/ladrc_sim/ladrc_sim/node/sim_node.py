@@ -530,11 +530,12 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 node.get_logger().info(f'scenario {node.scenario.name}: '
                                        f'{node.scenario.duration_s} s')
+                # the runner calls bridge.wind_down() after the last tick (the controller stops
+                # before its inputs do)
                 result = run(node.scenario, bridge, h_s=node.h_s)
                 node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
-                late = bridge.wind_down()  # the controller stops before its inputs do
-                if late:
-                    node.get_logger().warning(f'wind-down: {late}')
+                if bridge.wind_down_problem:
+                    node.get_logger().warning(f'wind-down: {bridge.wind_down_problem}')
         except StopSimulation:
             pass
         except LockstepAbort as exc:
