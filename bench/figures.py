@@ -593,6 +593,11 @@ def render(data: dict) -> str:
             when = f'{row["date"]}, {row["commit"]}, {row["machine"]}'
         out.append(f'| <a id="{f.id}"></a>{_cell(f.label)} | {_cell(value)} | `{command(f)}` | '
                    f'{when} |')
+    for rid, row in data.items():  # rows measured by a command that is not a bench's run
+        if rid not in BY_ID and 'label' in row and 'command' in row:
+            out.append(f'| <a id="{rid}"></a>{_cell(row["label"])} | {_cell(row["value"])} | '
+                       f'`{row["command"]}` | {row["date"]}, {row["commit"]}, '
+                       f'{row["machine"]} |')
     return '\n'.join(out) + '\n'
 
 
