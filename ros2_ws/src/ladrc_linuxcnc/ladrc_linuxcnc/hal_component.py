@@ -29,7 +29,9 @@ drives its output pins:
   ``watchdog`` latches a timeout until ``enable-in`` goes false and true again: this process
   reads ``ok-out`` back (``ladrc.watchdog-ok``) and, finding it tripped (it stalled past
   ``[LADRC]WATCHDOG_S``), counts the trip, pauses a running program as a lost link does and
-  re-arms the watchdog (``watchdog-enable`` low for ``REARM_PERIODS``); the operator resumes.
+  re-arms the watchdog (``watchdog-enable`` low for ``REARM_PERIODS`` steps and as long in
+  time, then high); while ``ok-out`` stays false ``REARM_RETRY_PERIODS`` after the rising edge
+  (the servo thread missed the low phase), the low phase is repeated. The operator resumes.
 
 **Safe outputs.** No node connected, the node silent for ``link_timeout_s``, its stream not
 ours, or this process ending: feed hold, no at-speed, beam off, not ready
@@ -70,7 +72,8 @@ IN_BIT = {'spindle-on': p.F_SPINDLE_ON, 'thc-off': p.F_THC_OFF, 'torch-off': p.F
 OUT_BIT = {'at-speed': p.O_AT_SPEED, 'feed-hold': p.O_FEED_HOLD, 'beam-on': p.O_BEAM,
            'height-ready': p.O_HEIGHT_READY}
 SEND_BUFFER_MAX = 64 * 1024  # a node that reads nothing for this much: samples are dropped
-REARM_PERIODS = 10  # watchdog-enable low this many periods (several servo periods) to re-arm it
+REARM_PERIODS = 10  # watchdog-enable low this many steps and periods (several servo periods)
+REARM_RETRY_PERIODS = 100  # ok-out still false this long after the rising edge: re-arm again
 
 
 class Component:
@@ -129,6 +132,7 @@ class Component:
         self.watchdog_armed = False  # ok-out seen true since the last (re-)arming
         self.watchdog_trips = 0
         self.rearm_end_ns = 0        # watchdog-enable low until then
+        self.rearm_steps = 0         # ... and for this many more steps
         self.running = True
         self.hello = hello_info()
 
@@ -235,13 +239,24 @@ class Component:
         live = (self.client is not None and self.last_outputs_ns > 0
                 and now_ns - self.last_outputs_ns <= self.link_timeout_ns)
         watchdog_ok = bool(self.pin_watchdog_ok.get())
+        period_ns = int(self.period_s * 1e9)
+        enable_low = now_ns < self.rearm_end_ns or self.rearm_steps > 0
         if self.watchdog_armed and not watchdog_ok:  # it timed out on us (a stall): latched
             self.watchdog_trips += 1
             self.watchdog_armed = False
-            self.rearm_end_ns = now_ns + REARM_PERIODS * int(self.period_s * 1e9)
+            self.rearm_end_ns = now_ns + REARM_PERIODS * period_ns
+            self.rearm_steps = REARM_PERIODS
+            enable_low = True
             live = False  # a trip as a lost link: safe outputs, a running program paused
-        elif watchdog_ok and now_ns >= self.rearm_end_ns:
+        elif watchdog_ok and not enable_low:
             self.watchdog_armed = True
+        elif (not self.watchdog_armed and not enable_low and self.watchdog_trips
+              and now_ns >= self.rearm_end_ns + REARM_RETRY_PERIODS * period_ns):
+            self.rearm_end_ns = now_ns + REARM_PERIODS * period_ns  # the edge was missed
+            self.rearm_steps = REARM_PERIODS
+            enable_low = True
+        if enable_low and self.rearm_steps > 0:
+            self.rearm_steps -= 1
         running = sample.flag(p.F_RUNNING) and not sample.flag(p.F_PAUSED)
         if live:
             self.apply(self.outputs)
@@ -258,7 +273,7 @@ class Component:
         self.pin_pause.set(now_ns < self.pulse_end_ns)
         self.pin_link.set(live)
         self.pin_heartbeat.set(not self.pin_heartbeat.get())
-        self.pin_watchdog_enable.set(now_ns >= self.rearm_end_ns)
+        self.pin_watchdog_enable.set(not enable_low)
         self.pin_dropped.set(self.dropped)
         self.pin_safe_trips.set(self.safe_trips)
         self.pin_watchdog_trips.set(self.watchdog_trips)
