@@ -244,27 +244,30 @@ FIGURES: tuple[Figure, ...] = (
                      f'{_f(r["target_x"])}×)', quick=True),
     Figure('jobs-headless', 'shipped jobs headless (`ladrc job NAME`): job time, pierces, '
            'contacts, faults, least true gap / target while cutting', 'live_jobs',
-           ('--lockstep',),
+           ('--lockstep', '--jobs', 'plate_holes', 'tipping_pair'),
            lambda r: '; '.join(
                f'{n}: {_f(j["headless"]["job_time_s"], 4)} s, {j["headless"]["pierces"]} '
                f'pierces, {j["headless"]["contacts"]} contacts, {j["headless"]["faults"]} '
                f'faults, {_f(j["headless"]["min_gap_over_target_cutting"])}'
                for n, j in r['jobs'].items())),
     Figure('jobs-lockstep', 'shipped jobs live in lock step (unpaced, recorder): verdict, '
-           'figures equal to headless, speed', 'live_jobs', ('--lockstep',),
+           'figures equal to headless, speed', 'live_jobs',
+           ('--lockstep', '--jobs', 'plate_holes', 'tipping_pair'),
            lambda r: '; '.join(
                f'{n}: {j["verdict"]}, '
                + ('equal' if all(j['live'].get(k) == v for k, v in j['headless'].items())
                   else 'differs')
                + f', {_f(j["live"]["realtime_x"])}× real time' for n, j in r['jobs'].items())),
     Figure('jobs-lockstep-separate', 'shipped jobs live in lock step with the CNC node '
-           '(--separate-cnc)', 'live_jobs', ('--lockstep', '--separate-cnc'),
+           '(--separate-cnc)', 'live_jobs',
+           ('--lockstep', '--separate-cnc', '--jobs', 'plate_holes', 'tipping_pair'),
            lambda r: '; '.join(
                f'{n}: {j["verdict"]}, '
                + ('equal' if all(j['live'].get(k) == v for k, v in j['headless'].items())
                   else 'differs')
                + f', {_f(j["live"]["realtime_x"])}× real time' for n, j in r['jobs'].items())),
-    Figure('jobs-free', 'shipped jobs live, free-running (real time)', 'live_jobs', (),
+    Figure('jobs-free', 'shipped jobs live, free-running (real time)', 'live_jobs',
+           ('--jobs', 'plate_holes', 'tipping_pair'),
            lambda r: '; '.join(
                f'{n}: {j["verdict"]} ({_f(j["live"]["job_time_s"])} s of job)'
                for n, j in r['jobs'].items())),
@@ -363,8 +366,9 @@ FIGURES: tuple[Figure, ...] = (
     Figure('cia402-job', '`plate_holes` on the CiA 402 path in lock step (0.5 ms), unpaced',
            'bringup', ('--drive', 'cia402', '--job', 'plate_holes', '--lockstep', '--unpaced'),
            lambda r: f'{_job_run(r)}; {_f(r.get("realtime_x"))}× real time'),
-    Figure('fault-matrix', 'fault-injection matrix (headless, live, CiA 402)', 'fault_matrix',
-           (),
+    Figure('fault-matrix', 'fault-injection matrix (headless, live, CiA 402, LinuxCNC; load '
+           'row 10 s, parameter clients 6 s)', 'fault_matrix',
+           ('--load-s', '10', '--clients-s', '6'),
            lambda r: f'{r["contacts"]} contacts, {r["node_crashes"]} node crashes, '
                      f'{r["nonfinite_commands"]} non-finite commands, '
                      f'{r["invalid_params_accepted"]} of {r["invalid_params_tried"]} invalid '
@@ -372,11 +376,11 @@ FIGURES: tuple[Figure, ...] = (
                      f'controller SIGKILL ({_f(r.get("canopen_kill_stop_ms"))} ms after a '
                      'CiA 402 driver SIGKILL)', readme=True),
     Figure('fault-matrix-edges', 'fault-injection matrix, edge rows: smallest true gap / target '
-           '(the bar: 0.7)', 'fault_matrix', (),
+           '(the bar: 0.7)', 'fault_matrix', ('--load-s', '10', '--clients-s', '6'),
            lambda r: '; '.join(f'{x["row"]} {_f(x["gap_over_target"])}' for x in r['rows']
                                if x.get('gap_over_target') is not None)),
-    Figure('fault-matrix-live', 'fault-injection matrix, live rows: recorder SIGKILL, load',
-           'fault_matrix', (),
+    Figure('fault-matrix-live', 'fault-injection matrix, live rows: recorder SIGKILL, load (10 s)',
+           'fault_matrix', ('--load-s', '10', '--clients-s', '6'),
            lambda r: f'at most {_f(r["recorder_kill_loss_s"])} s of the bag lost before a '
                      f'recorder SIGKILL (worst of 3); {r["spurious_faults_under_load"]} '
                      'spurious faults following under two busy loops'),
@@ -394,8 +398,9 @@ FIGURES: tuple[Figure, ...] = (
            "linuxcnc --fault`): contact, the nozzle after the fault, the controller's final "
            "state, LinuxCNC's side", 'fault_matrix', ('--only', 'linuxcnc'),
            _fault_rows_linuxcnc),
-    Figure('linuxcnc-jobs', 'shipped jobs under LinuxCNC (bringup --cnc linuxcnc), 2 runs each '
-           'with the timing allowance and with the product timing', 'linuxcnc_jobs', (),
+    Figure('linuxcnc-jobs', 'shipped jobs under LinuxCNC (bringup --cnc linuxcnc), one run each '
+           'with the timing allowance and with the product timing', 'linuxcnc_jobs',
+           ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'),
            lambda r: '; '.join(
                f'{n}: to the end {e["ran_to_end"].get("allowance", [0, 0])[0]}/'
                f'{e["ran_to_end"].get("allowance", [0, 0])[1]} '
@@ -405,17 +410,21 @@ FIGURES: tuple[Figure, ...] = (
                'contacts' for n, e in r['jobs'].items())),
     Figure('linuxcnc-safety', 'shipped jobs under LinuxCNC: the verdict, XY moved before '
            "ready, the bridge's samples late (p99) and the component's longest gap, why runs "
-           'stopped', 'linuxcnc_jobs', (),
+           'stopped', 'linuxcnc_jobs',
+           ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'),
            _linuxcnc_safety),
     Figure('linuxcnc-side-by-side', 'shipped jobs headless (`ladrc job --separate-cnc`) / under '
            'LinuxCNC (the runs to their end): job time, holds by kind, corner excursion, least '
-           'true gap / target while cutting', 'linuxcnc_jobs', (), _linuxcnc_side),
+           'true gap / target while cutting', 'linuxcnc_jobs',
+           ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'), _linuxcnc_side),
     Figure('linuxcnc-blend', "a job under LinuxCNC with the post-processor's G64 P0.05 and with "
-           'G61 (exact stop)', 'linuxcnc_jobs', (),
+           'G61 (exact stop)', 'linuxcnc_jobs',
+           ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'),
            lambda r: f'{r["blend"]["job"]}: G64 P0.05 {_job_run(r["blend"]["g64"])}; G61 '
                      f'{_job_run(r["blend"]["g61"])}'),
     Figure('linuxcnc-foreign', "LinuxCNC's own plasmatest.ngc as it is, under LinuxCNC with the "
-           'height controller', 'linuxcnc_jobs', (),
+           'height controller', 'linuxcnc_jobs',
+           ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'),
            lambda r: f'{_job_run(r["foreign"])}, {r["foreign"].get("bridge_leapfrogs")} '
                      'leapfrogs, XY moved before ready '
                      f'{r["foreign"].get("bridge_moved_before_ready")}'),
@@ -446,29 +455,30 @@ FIGURES: tuple[Figure, ...] = (
                      f'{_f(r["write_cpu_s"])} / {_f(r["report_no_html_cpu_s"])} s, peak RSS '
                      f'{_f(r["write_peak_rss_mib"])} / {_f(r["report_no_html_peak_rss_mib"])} '
                      'MiB'),
-    Figure('bag-tools-hour', 'tools on a 1-hour bag, each in its own process', 'bag_scale',
-           ('--part', 'tools'),
+    Figure('bag-tools-hour', 'tools on a 15-minute bag, each in its own process', 'bag_scale',
+           ('--part', 'tools', '--tool-hours', '0.25'),
            lambda r: f'report {_f(r["report_realtime_x"])}×, replay '
                      f'{_f(r["replay_realtime_x"])}× real time; peak RSS '
                      f'{_f(r["tools_peak_rss_mib"])} MiB', readme=True),
-    Figure('bag-writer-shift', "the recorder's writer fed a simulated 4-hour shift of the "
-           '2 kHz topics', 'bag_scale', ('--part', 'writer', '--hours', '4'),
+    Figure('bag-writer-shift', "the recorder's writer fed a simulated 15 minutes of the "
+           '2 kHz topics', 'bag_scale', ('--part', 'writer', '--hours', '0.25'),
            lambda r: (lambda w: f'{w["messages_written"]} of {w["messages_fed"]} messages '
                       f'read back; periodic work {_f(w["periodic_ms_start"])} → '
                       f'{_f(w["periodic_ms_end"])} ms a call, first → last minute (ratio '
                       f'{_f(w["periodic_end_over_start"])}, target ≤ 1.5), longest '
                       f'{_f(w["periodic_ms_max"])} ms; peak RSS {_f(w["peak_rss_mib"])} MiB; '
                       f'{_f(w["realtime_x"])}× real time')(r['writer'])),
-    Figure('bag-live-hour', 'recording the full node set live (600 s, zstd chunks)', 'bag_scale',
-           ('--part', 'live'),
+    Figure('bag-live-hour', 'recording the full node set live (120 s, zstd chunks)', 'bag_scale',
+           ('--part', 'live', '--live-s', '120'),
            lambda r: (lambda v: f'{v["bytes_per_hour"] / 1e9:.2f} GB per hour; '
                       f'{v["messages_total"]} messages, {v["messages_lost"]} lost, '
                       f'{v["messages_dropped"]} dropped; load average '
                       f'{_f(v["load_avg_1min_mean"])} (max {_f(v["load_avg_1min_max"])}) on '
                       f'{v["cpus"]} cores')(r['live'])),
-    Figure('fleet-scaling', '`ladrc fleet` on a generated fleet (8 machines × 5 days × 4 bags '
+    Figure('fleet-scaling', '`ladrc fleet` on a generated fleet (4 machines × 2 days × 2 bags '
            'of 8 s): generate, read on 1 and 2 workers without cache, per bag vs `ladrc report`, '
-           'worker memory', 'fleet_scaling', (),
+           'worker memory', 'fleet_scaling',
+           ('--machines', '4', '--days', '2', '--bags-per-day', '2'),
            lambda r: f'{r["bags"]} bags (seed {r["seed"]}): generated in '
                      f'{_f(r["generate_s_2_workers"])} s on 2 workers; read in '
                      f'{_f(r["wall_s_1_worker"])} s on 1 worker, {_f(r["wall_s_2_workers"])} s on '
@@ -476,20 +486,20 @@ FIGURES: tuple[Figure, ...] = (
                      f'vs {_f(r["report_per_bag_s"])} s (`ladrc report` in its own process, plots '
                      f'included); worker peak {_f(r["worker_peak_rss_mb"])} MB'),
     Figure('fleet-flags', "`ladrc fleet`'s flags on the generated fleet against its truth file",
-           'fleet_scaling', (),
+           'fleet_scaling', ('--machines', '4', '--days', '2', '--bags-per-day', '2'),
            _fleet_flags),
-    Figure('sweep-engine', "`ladrc tune`'s sweep (about 5 000 points × every batchable scenario) "
+    Figure('sweep-engine', "`ladrc tune`'s sweep (about 2 000 points × every batchable scenario) "
            'in one batch on one core vs in parts on a local cluster of 2 workers',
-           'sweep_engine', ('--sets', '5000'),
+           'sweep_engine', ('--sets', '2000'),
            lambda r: f'{r["points"]} points × {r["scenarios"]} scenarios: one core '
                      f'{_f(r["one_core_s"])} s (peak {_f(r["driver_peak_rss_mb"])} MB), the '
                      f'engine {_f(r["engine_s"])} s on {r["workers"]} workers (peak '
                      f'{_f(r["worker_peak_rss_mb"])} MB a worker); scores, verdicts and fronts '
                      f'identical: {r["identical"]}; {r["passed"]} through the gate, {r["front"]} '
                      'on the front'),
-    Figure('sweep-engine-large', "`ladrc tune`'s sweep of about 100 000 points × 3 scenarios "
+    Figure('sweep-engine-large', "`ladrc tune`'s sweep of about 20 000 points × 3 scenarios "
            '(one of each class) on the engine alone', 'sweep_engine',
-           ('--sets', '100000', '--engine-only', '--scenarios', 'step,sine_5hz,edge_step_3_1'),
+           ('--sets', '20000', '--engine-only', '--scenarios', 'step,sine_5hz,edge_step_3_1'),
            lambda r: f'{r["points"]} points × {r["scenarios"]} scenarios on {r["workers"]} '
                      f'workers: {_f(r["engine_s"])} s; {r["passed"]} through the gate, '
                      f'{r["front"]} on the front; peak {_f(r["worker_peak_rss_mb"])} MB a worker, '
