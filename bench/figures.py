@@ -12,7 +12,7 @@ figures out of that line, and writes
 keeping the rows it did not run as they were. A few figures are printed by a tool of the project
 rather than a bench (``ladrc conform``, ``bringup``: ``TOOLS``), run the same way; ``OUT`` in
 such a command is a fresh folder of the run. A full run also regenerates docs/quality.md's
-suite tables (``ladrc suite --law-only``, between ``suite:begin`` and ``suite:end``). The
+suite table (``ladrc suite --law-only``, between ``suite:begin`` and ``suite:end``). The
 README's short table (between the
 ``figures:begin`` and ``figures:end`` markers) is rendered from the same data. Docs that cite a
 figure link to its row (``docs/figures.md#<id>``) instead of restating it.
@@ -640,8 +640,8 @@ QUALITY = DOCS / 'quality.md'
 def update_quality(out_dir: Path) -> bool:
     """Regenerate docs/quality.md's suite tables (``ladrc suite --law-only``) in place.
 
-    The tables between ``suite:begin`` and ``suite:end`` are the suite's own ``suite.md``
-    from its "Notes vs simulation" on, its headings one level down. Returns False when the
+    Between ``suite:begin`` and ``suite:end``: the "Notes vs simulation" table of the suite's
+    own ``suite.md``, its heading one level down. Returns False when the
     suite failed (the tables stay as they were).
     """
     folder = out_dir / 'suite'
@@ -653,7 +653,8 @@ def update_quality(out_dir: Path) -> bool:
         print(f'figures: ladrc suite failed: {proc.stderr.strip()[-300:]}', file=sys.stderr)
         return False
     text = md.read_text(encoding='utf-8')
-    part = text[text.index('## Notes vs simulation'):].replace(str(folder), 'DIR')
+    part = text[text.index('## Notes vs simulation'):text.index('## All runs')]
+    part = part.replace(str(folder), 'DIR')
     part = re.sub(r'^## ', '### ', part, flags=re.M)
     begin, end = '<!-- suite:begin -->', '<!-- suite:end -->'
     doc = QUALITY.read_text(encoding='utf-8')
