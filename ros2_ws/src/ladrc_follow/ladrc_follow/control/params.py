@@ -13,9 +13,10 @@ loads the same file with ``--params-file``. ROS parameters cannot be null, so
 optional features are switched by a mode string or a bool and "0 = off"
 (documented per field), never by ``None``.
 
-Validation looks at the whole set (:func:`validate`) and reports every reason
-at once; :func:`check` raises :class:`ParameterError` carrying them all.
-Unknown keys are errors naming the key. Per-value checks come from the declarations;
+Reading a mapping is the contract's one loader (``ladrc_contract.schema.load``: types,
+unknown keys naming the key, nested sections). Validation looks at the whole set
+(:func:`validate`) and reports every reason at once; :func:`check` raises
+:class:`ParameterError` carrying them all. Per-value checks come from the declarations;
 the checks that relate several parameters (:data:`CROSS_CHECKS`: discrete stability of the
 TDs and the observer, contradicting limits, the follow windows) are here, next to the set;
 other modules can add whole-set checks to :data:`EXTRA_VALIDATORS`.
@@ -25,10 +26,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-import typing
 from typing import Any, Callable
 
-from ladrc_contract.schema import entries, field_problems, param
+from ladrc_contract.schema import (
+    NOT_MAPPING,
+    UNKNOWN_KEY,
+    WRONG_TYPE,
+    LoadError,
+    Problem,
+    entries,
+    field_problems,
+    load,
+    param,
+)
 import numpy as np
 import yaml
 
@@ -219,69 +229,16 @@ def law_gains(p: ControllerParams) -> tuple[float, float]:
 # ---------------------------------------------------------------------------
 # dict / YAML conversion
 
-def _number(value: Any, key: str, errors: list[str]) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        hint = ''
-        if isinstance(value, str):
-            try:
-                float(value)
-                hint = ' (YAML reads 1e-3 as text: write 1.0e-3)'
-            except ValueError:
-                pass
-        errors.append(f'{key} = {value!r}: must be a number{hint}')
-        return None
-    try:
-        return float(value)
-    except OverflowError:
-        errors.append(f'{key} = {value}: too large for a float')
-        return None
-
-
-def _convert(value: Any, tp: Any, key: str, errors: list[str]) -> Any:
-    """Convert one YAML/ROS value to the declared type (ints for floats, lists for tuples)."""
-    if tp is float:
-        return _number(value, key, errors)
-    if tp is int:
-        if isinstance(value, float) and value.is_integer():
-            return int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
-            errors.append(f'{key} = {value!r}: must be a whole number')
-            return None
-        return value
-    if tp is bool or tp is str:
-        if not isinstance(value, tp):
-            errors.append(f'{key} = {value!r}: must be '
-                          f'{"true or false" if tp is bool else "a string"}')
-            return None
-        return value
-    if typing.get_origin(tp) is tuple:
-        if not isinstance(value, (list, tuple)):
-            errors.append(f'{key} = {value!r}: must be a list of numbers')
-            return None
-        items = [_number(v, f'{key}[{i}]', errors) for i, v in enumerate(value)]
-        return None if None in items else tuple(items)
-    return value
-
-
-def _build(base: Any, d: dict, prefix: str, errors: list[str]) -> Any:
-    """Return ``base`` (a section instance) with the values of ``d`` converted and applied."""
-    hints = typing.get_type_hints(type(base))
-    changes = {}
-    for k, v in d.items():
-        key = f'{prefix}.{k}' if prefix else str(k)
-        if k not in hints:
-            errors.append(f"unknown key '{key}' (known in {prefix or 'the top level'}: "
-                          f"{', '.join(hints)})")
-        elif is_dataclass(hints[k]):
-            if isinstance(v, dict):
-                changes[k] = _build(getattr(base, k), v, key, errors)
-            else:
-                errors.append(f'{key} must be a section (mapping), got {v!r}')
-        else:
-            conv = _convert(v, hints[k], key, errors)
-            if conv is not None:
-                changes[k] = conv
-    return replace(base, **changes)
+def _reason(p: Problem) -> str:
+    """One :class:`ParameterError` reason of a loader problem, in the validation's wording."""
+    if p.kind == UNKNOWN_KEY:
+        section = p.path.rpartition('.')[0] or 'the top level'
+        return f"unknown key '{p.path}' (known in {section}: {', '.join(p.allowed)})"
+    if p.kind == NOT_MAPPING and p.path:
+        return f'{p.path} must be a section (mapping), got {p.value!r}'
+    if p.kind == WRONG_TYPE:
+        return f'{p.path} = {p.value!r}: must be {p.expected}{p.hint}'
+    return str(p)
 
 
 def _nest_dotted(d: dict) -> dict:
@@ -350,10 +307,10 @@ def params_from_dict(d: dict | None, node_name: str | None = None,
     if not isinstance(d, dict):
         raise ParameterError([f'parameters must be a mapping, got {type(d).__name__}'])
     d = _nest_dotted(_unwrap_ros(d, node_name))
-    errors: list[str] = []
-    p = _build(ControllerParams(), d, '', errors)
-    if errors:
-        raise ParameterError(errors)
+    try:  # the ranges are the validation's (every reason at once, below)
+        p = load(ControllerParams, d, base=ControllerParams(), ranges=False)
+    except LoadError as exc:
+        raise ParameterError([_reason(q) for q in exc.problems]) from None
     if validate_set:
         check(p)
     return p
