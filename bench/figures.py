@@ -47,7 +47,7 @@ DOCS = ROOT / 'docs'
 DATA = DOCS / 'figures.json'
 TABLE = DOCS / 'figures.md'
 README = ROOT / 'README.md'
-TOOLS = {'ladrc': 'ladrc_tools.cli', 'bringup': 'ladrc_tools.bringup.bringup'}
+TOOLS = {'ladrc': 'ladrc_tools.cli', 'bringup': 'ladrc_bringup.bringup'}
 """Figures printed by a tool of the project instead of a bench: the tool's module."""
 OUT = '{out}'
 """In a figure's arguments: a fresh folder of the run (``OUT`` in the command shown)."""
@@ -635,14 +635,16 @@ def update_readme(data: dict) -> bool:
 
 
 QUALITY = DOCS / 'quality.md'
+QUALITY_VARIANTS = ('variant', '---', 'pid', 'ladrc')
+"""The variants (and the header's cells) of docs/quality.md's table."""
 
 
 def update_quality(out_dir: Path) -> bool:
     """Regenerate docs/quality.md's suite tables (``ladrc suite --law-only``) in place.
 
     Between ``suite:begin`` and ``suite:end``: the "Notes vs simulation" table of the suite's
-    own ``suite.md``, its heading one level down. Returns False when the
-    suite failed (the tables stay as they were).
+    own ``suite.md`` for the PID and the shipped LADRC, its heading one level down. Returns
+    False when the suite failed (the table stays as it was).
     """
     folder = out_dir / 'suite'
     proc = subprocess.run([sys.executable, '-m', 'ladrc_tools.cli', 'suite', '-q', '--law-only',
@@ -655,6 +657,9 @@ def update_quality(out_dir: Path) -> bool:
     text = md.read_text(encoding='utf-8')
     part = text[text.index('## Notes vs simulation'):text.index('## All runs')]
     part = part.replace(str(folder), 'DIR')
+    # the PID and the shipped LADRC; the variants' rows are in the suite's own suite.md
+    part = '\n'.join(line for line in part.splitlines() if not line.startswith('| ')
+                     or line.split('|')[2].strip() in QUALITY_VARIANTS)
     part = re.sub(r'^## ', '### ', part, flags=re.M)
     begin, end = '<!-- suite:begin -->', '<!-- suite:end -->'
     doc = QUALITY.read_text(encoding='utf-8')
