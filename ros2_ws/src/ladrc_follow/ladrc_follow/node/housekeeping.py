@@ -6,7 +6,7 @@ and its timers (diagnostics, the topology check), and ``ros2 param``.
 
 Parameters: rclpy serves a node's parameter services on the executor that spins the node; a
 set's check (its stability gate, ~10 ms) on the loop held it beyond the drive's 5 ms watchdog
-(docs/safety.md, "What the runs found"). Here rclpy's own
+(docs/safety.md, "Stalls"). Here rclpy's own
 :class:`ParameterService` answers for the node, with the node's parameters and its ``on_set``
 callbacks, but its six services belong to a hidden helper node (``_<name>_parameters``, same
 namespace, no global remaps), so they keep the node's names (``<name>/set_parameters`` ...) and
