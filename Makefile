@@ -4,10 +4,10 @@
 # The showcase live on ROS (sim + controller + recorder) in lock step paced to real time,
 # ending in a bag and its report; demo-live: the same free-running (the product's own loop).
 demo:
-	scripts/in-env python -m ladrc_tools.bringup.demo
+	scripts/in-env python -m ladrc_bringup.demo
 
 demo-live:
-	scripts/in-env python -m ladrc_tools.bringup.demo --free-running
+	scripts/in-env python -m ladrc_bringup.demo --free-running
 
 
 # Lint (ruff: flake8 + pep257 rule sets, the ROS Python conventions), then every test in two

@@ -33,17 +33,18 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_tools'))
+sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_bags'))
 
-from ladrc_tools.bags.bag import open_bag  # noqa: E402
+from ladrc_bags import open_bag  # noqa: E402
 
 
 def _headless_bag(path: Path, seconds: float) -> None:
     from bag_scale import shift_scenario  # the same shift as the other bag benches
+    from ladrc_bags import write_run_bag
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import ControllerParams, dump_params
     from ladrc_sim.headless.runner import run
     from ladrc_sim.headless.scenario import scenario_from_dict
-    from ladrc_tools.bags.bag import write_run_bag
 
     sc = scenario_from_dict(shift_scenario(seconds))
     params = ControllerParams()
@@ -62,10 +63,10 @@ def main() -> None:
         tmp = Path(tempfile.mkdtemp(prefix='bag-read-'))
         bag = tmp / 'bag'
         _headless_bag(bag, a.seconds)
-    from ladrc_tools.bags import reader as reader_mod
-    from ladrc_tools.bags.columns import CdrColumns
-    from ladrc_tools.bags.errors import BagError
-    from ladrc_tools.bags.rows import RowPacker
+    from ladrc_bags import reader as reader_mod
+    from ladrc_bags.columns import CdrColumns
+    from ladrc_bags.errors import BagError
+    from ladrc_bags.rows import RowPacker
 
     with open_bag(bag) as b:
         wanted = {t: None for t in b.topics}

@@ -7,7 +7,7 @@
 
 Part ``writer`` (the recording issue's (a)): the contract's 2 kHz topics (capacitive height,
 feedback, velocity command, follow status, sim truth: 10 000 messages per second of simulated
-time, pre-serialized) go through :class:`ladrc_tools.bags.bag.BagWriter` exactly as the
+time, pre-serialized) go through :class:`ladrc_bags.BagWriter` exactly as the
 recorder's writer thread calls it, on a simulated clock (so the 0.25 s flushes and the 5 s
 ``metadata.yaml`` rewrites happen per simulated second, as live). Reported: the cost of the
 periodic work (flush + metadata) over the first and the last simulated minutes and their ratio
@@ -43,9 +43,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_tools'))
+sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_bags'))
+sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_bringup'))
 
-from ladrc_tools.bags import writer as bagmod  # noqa: E402 (its clock: time.monotonic)
-from ladrc_tools.bags.bag import BagWriter, RowPacker, open_bag  # noqa: E402
+from ladrc_bags import BagWriter, RowPacker, open_bag  # noqa: E402
+from ladrc_bags import writer as bagmod  # noqa: E402 (its clock: time.monotonic)
 
 TOPICS = {'axis/capacitive_height': 'ladrc_msgs/msg/CapacitiveHeight',
           'axis/feedback': 'ladrc_msgs/msg/AxisFeedback',
@@ -103,11 +105,11 @@ def _tool(args: list[str]) -> dict:
 
 def tools(hours: float, bag: str | None) -> dict:
     """Part (b): replay, report, export and what-if of a long headless bag."""
+    from ladrc_bags import write_run_bag
     from ladrc_follow.control.follow import FollowController
     from ladrc_follow.control.params import ControllerParams, dump_params
     from ladrc_sim.headless.runner import run
     from ladrc_sim.headless.scenario import scenario_from_dict
-    from ladrc_tools.bags.bag import write_run_bag
 
     tmp = Path(tempfile.mkdtemp(prefix='bag-scale-tools-'))
     seconds = hours * 3600
@@ -152,7 +154,7 @@ def live(seconds: float) -> dict:
     """Part live: the bring-up's node set for ``seconds`` recording a bag; its summary."""
     import os
 
-    from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
+    from ladrc_bringup.bringup import Bringup, isolated_env, node_specs
     import yaml
 
     tmp = Path(tempfile.mkdtemp(prefix='bag-scale-live-'))

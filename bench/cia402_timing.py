@@ -40,7 +40,7 @@ import tempfile
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
+BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_bringup' / 'lib' / 'ladrc_bringup'
 
 SCENARIO = """name: cia402_timing
 description: bench/cia402_timing.py - approach from 3 mm, follow at 1 mm over a 0.3 mm 1 Hz sine.
@@ -70,7 +70,7 @@ def stamps_s(cols: dict) -> np.ndarray:
 
 
 def one(period_ms: float, duration: float, folder: Path, domain: int) -> dict:
-    from ladrc_tools.bags.bag import open_bag
+    from ladrc_bags import open_bag
 
     scenario = folder / f'timing_{period_ms:g}.yaml'
     scenario.write_text(SCENARIO.format(duration=duration + 3.0), encoding='utf-8')

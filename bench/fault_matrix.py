@@ -74,7 +74,7 @@ sys.path.insert(0, str(ROOT / 'tests' / 'support'))
 os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 101))
 os.environ.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)  # the shipped loopback profile
 
-from ladrc_tools.bringup.bringup import loopback_settings  # noqa: E402
+from ladrc_bringup.bringup import loopback_settings  # noqa: E402
 
 os.environ.update(loopback_settings(os.environ))
 
@@ -366,8 +366,8 @@ def linuxcnc_rows(at_s: float = 2.5) -> int:
     and LinuxCNC's side (``paused``, ``feed_hold``: from its HAL pins or the bridge's log).
     Returns the rows that could not run (LinuxCNC missing: 0 rows, a line).
     """
+    from ladrc_bags import BagError, open_bag
     from ladrc_linuxcnc.machine import missing
-    from ladrc_tools.bags.bag import BagError, open_bag
     from linuxcnc_runs import bringup_linuxcnc, small_job
 
     why = missing()
@@ -474,10 +474,10 @@ SIGKILL_SETTLE_S = 3.0  # Fast DDS 2.14: no probe teardown within ~1 s of a publ
 
 def live_rows(load_s: float, clients_s: float) -> dict:
     from diagnostic_msgs.msg import DiagnosticArray
+    from ladrc_bags import BagError, open_bag
+    from ladrc_bringup.bringup import node_specs, ros_arguments
     from ladrc_msgs.msg import CapacitiveHeight, FollowStatus, SimTruth, VelocityCommand
     from ladrc_msgs.srv import StartFollow
-    from ladrc_tools.bags.bag import BagError, open_bag
-    from ladrc_tools.bringup.bringup import node_specs, ros_arguments
     from rcl_interfaces.msg import ParameterType
     from rcl_interfaces.srv import SetParameters
     from rosnodes import NodeProcesses, Probe, ProbeError
@@ -526,7 +526,7 @@ def live_rows(load_s: float, clients_s: float) -> dict:
     def start_axis(live: Live, with_recorder: Path | None = None):
         nodes, probe = live.nodes, live.probe
         if with_recorder is not None:
-            nodes.start('recorder', 'ladrc_tools', 'recorder', '-p', f'output:={with_recorder}')
+            nodes.start('recorder', 'ladrc_bags', 'recorder', '-p', f'output:={with_recorder}')
         # the configuration of bring-up (product timeouts, real-time settings, CPU pinning)
         for spec in node_specs(scenario):
             if spec.executable in ('follow_node', 'sim_node'):
@@ -948,10 +948,10 @@ def canopen_rows() -> dict:
     contact (true gap <= 0), the time to rest where the axis survives, the follow node's fault
     and its reason, crashes of the nodes that should survive.
     """
+    from ladrc_bringup.bringup import node_specs, ros_arguments
     from ladrc_msgs.msg import AxisFeedback, FollowStatus, SimTruth
     from ladrc_msgs.srv import ResetFault, StartFollow
     from ladrc_sim.cia402.bus import start_bus_server
-    from ladrc_tools.bringup.bringup import node_specs, ros_arguments
     from rosnodes import NodeProcesses, Probe, ProbeError
 
     out: dict = {'canopen_node_crashes': 0, 'canopen_contacts': 0}

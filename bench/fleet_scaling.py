@@ -26,14 +26,15 @@ import tempfile
 import time
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
+for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools', 'ladrc_bags',
+            'ladrc_fleet'):
     src = str(ROOT / 'ros2_ws' / 'src' / pkg)
     if src not in sys.path:
         sys.path.insert(0, src)
 
-from ladrc_tools.fleet.engine import client, in_order  # noqa: E402
-from ladrc_tools.fleet.generate import FleetSpec, plan, write_bag, write_truth  # noqa: E402
-from ladrc_tools.fleet.run import run_fleet  # noqa: E402
+from ladrc_fleet.generate import FleetSpec, plan, write_bag, write_truth  # noqa: E402
+from ladrc_fleet.run import run_fleet  # noqa: E402
+from ladrc_tools.offline.engine import client, in_order  # noqa: E402
 
 RULE_OF = {'gain_drift': 'sensor_gain', 'slow_axis': 'slow_axis', 'noisy_sensor': 'sensor_noise'}
 

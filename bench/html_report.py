@@ -42,9 +42,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_tools'))
+sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / 'ladrc_bags'))
 sys.path.insert(0, str(ROOT / 'tests' / 'support'))
 
-from ladrc_tools.bags.bag import open_bag  # noqa: E402
+from ladrc_bags import open_bag  # noqa: E402
 
 
 def _headless_bag(path: Path, seconds: float) -> None:

@@ -34,7 +34,7 @@ import sys
 import time
 
 ROOT = Path(__file__).resolve().parents[1]
-for _pkg in ('ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
+for _pkg in ('ladrc_follow', 'ladrc_sim', 'ladrc_tools', 'ladrc_bags'):
     sys.path.insert(0, str(ROOT / 'ros2_ws/src' / _pkg))
 from ladrc_follow.analysis.loop import AxisModel, analyse_params  # noqa: E402
 from ladrc_follow.control.follow import FollowController  # noqa: E402

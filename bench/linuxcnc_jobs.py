@@ -49,7 +49,8 @@ import time
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('ladrc_contract', 'ladrc_linuxcnc', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
+for pkg in ('ladrc_contract', 'ladrc_linuxcnc', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools',
+            'ladrc_bags', 'ladrc_bringup'):
     src = str(ROOT / 'ros2_ws' / 'src' / pkg)
     if src not in sys.path:
         sys.path.insert(0, src)

@@ -30,7 +30,7 @@ import sys
 import tempfile
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
+for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools', 'ladrc_bags'):
     src = str(ROOT / 'ros2_ws' / 'src' / pkg)
     if src not in sys.path:
         sys.path.insert(0, src)

@@ -115,7 +115,7 @@ def run_node_set(folder: Path, duration_s: float, loop: str, recorder: str,
 
     The node set runs on ROS_DOMAIN_ID ``domain_id`` (default: one drawn from 1..101).
     """
-    from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
+    from ladrc_bringup.bringup import Bringup, isolated_env, node_specs
 
     scenario = folder / 'loop_timing.yaml'
     scenario.write_text(SCENARIO.format(duration=WARMUP_S + duration_s))
@@ -140,7 +140,7 @@ def run_node_set(folder: Path, duration_s: float, loop: str, recorder: str,
 
 def figures(bag: Path, logs: dict[str, str]) -> dict[str, float]:
     """Return the loop's figures from its bag (module docstring)."""
-    from ladrc_tools.bags.bag import open_bag
+    from ladrc_bags import open_bag
 
     with open_bag(bag) as b:
         st = b.columns('follow/status', ['tick', 't_s', 'period_us', 'compute_us', 'gap_seq',

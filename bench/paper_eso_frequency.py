@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _pkg in ('ladrc_follow', 'ladrc_tools'):
+for _pkg in ('ladrc_follow', 'ladrc_tools', 'ladrc_bags'):
     sys.path.insert(0, str(ROOT / 'ros2_ws/src' / _pkg))
 from ladrc_tools.offline.eso_frequency import (  # noqa: E402
     N_FIG2,

@@ -27,7 +27,7 @@ import sys
 import time
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
+for pkg in ('ladrc_follow', 'ladrc_sim', 'ladrc_tools', 'ladrc_bags'):
     sys.path.insert(0, str(ROOT / 'ros2_ws' / 'src' / pkg))
 
 from ladrc_tools.offline import seed_experiments as se  # noqa: E402

@@ -24,7 +24,7 @@ import subprocess
 import sys
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
+BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_bringup' / 'lib' / 'ladrc_bringup'
 HANG_S = 600  # a bound on a hang, not on speed
 
 

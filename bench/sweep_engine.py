@@ -24,15 +24,16 @@ import time
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools'):
+for pkg in ('ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_tools', 'ladrc_bags',
+            'ladrc_fleet'):
     src = str(ROOT / 'ros2_ws' / 'src' / pkg)
     if src not in sys.path:
         sys.path.insert(0, src)
 
+from ladrc_fleet.run import peak_rss_mb  # noqa: E402
 from ladrc_follow.control.params import ControllerParams  # noqa: E402
 from ladrc_sim.headless.batch import batchable_scenarios  # noqa: E402
-from ladrc_tools.fleet.engine import client  # noqa: E402
-from ladrc_tools.fleet.run import peak_rss_mb  # noqa: E402
+from ladrc_tools.offline.engine import client  # noqa: E402
 from ladrc_tools.offline.tune import sweep, sweep_on  # noqa: E402
 
 

@@ -51,8 +51,8 @@ LOOP_FIGURES = ('rate_hz', 'period_p99_us', 'period_max_us', 'ticks', 'fault_tic
 def run(folder: Path, scenario: str, view_port: int | None, domain_id: int) -> dict:
     """One run of the node set (+ the view and a client when ``view_port``); its figures."""
     from foxglove_client import FoxgloveClient
-    from ladrc_tools.bags.bag import open_bag
-    from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs, view_spec
+    from ladrc_bags import open_bag
+    from ladrc_bringup.bringup import Bringup, isolated_env, node_specs, view_spec
     from loop_timing import figures
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -125,7 +125,7 @@ def main() -> int:
                     help='ROS_DOMAIN_ID of the node sets [random 1..101]')
     args = ap.parse_args()
     os.environ.setdefault('PYTHONUNBUFFERED', '1')
-    from ladrc_tools.bringup.bringup import port_in_use
+    from ladrc_bringup.bringup import port_in_use
 
     busy = port_in_use(args.port)
     if busy:

@@ -35,7 +35,7 @@ import signal
 import subprocess
 import sys
 
-from ladrc_tools.bringup.bringup import interrupt_process
+from ladrc_bringup.bringup import interrupt_process
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]

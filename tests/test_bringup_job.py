@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+from ladrc_bringup import bringup
+from ladrc_bringup.bringup import job_params_file, node_specs
 from ladrc_follow.control.params import load_params
 from ladrc_sim.job.jobfile import shipped_jobs
-from ladrc_tools.bringup import bringup
-from ladrc_tools.bringup.bringup import job_params_file, node_specs
 
 
 def test_a_job_gives_the_follow_node_its_own_parameters_over_the_set(tmp_path):

@@ -13,10 +13,10 @@ import signal
 import sys
 import types
 
-from ladrc_tools.bringup.bringup import LAUNCH_ARGUMENTS
+from ladrc_bringup.bringup import LAUNCH_ARGUMENTS
 import pytest
 
-LAUNCH_DIR = Path(__file__).resolve().parents[1] / 'ros2_ws' / 'src' / 'ladrc_tools' / 'launch'
+LAUNCH_DIR = Path(__file__).resolve().parents[1] / 'ros2_ws' / 'src' / 'ladrc_bringup' / 'launch'
 
 
 class _Rec:

@@ -32,7 +32,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
 PACKAGES = ('ladrc_contract', 'ladrc_cia402', 'ladrc_linuxcnc', 'ladrc_follow', 'ladrc_sim',
-            'ladrc_tools')
+            'ladrc_bags', 'ladrc_tools', 'ladrc_bringup', 'ladrc_fleet')
 PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning',
                 'fleet', 'cia402', 'cam')
 LINUXCNC_SIDE = ('hal_component.py', 'display.py', 'z_filter.py', 'gcode_path.py',
@@ -71,7 +71,10 @@ DEPEND_KEY = {
     'launch_ros': 'launch_ros',
     'ladrc_follow': 'ladrc_follow',
     'ladrc_sim': 'ladrc_sim',
+    'ladrc_bags': 'ladrc_bags',
     'ladrc_tools': 'ladrc_tools',
+    'ladrc_bringup': 'ladrc_bringup',
+    'ladrc_fleet': 'ladrc_fleet',
     'pytest': 'python3-pytest',
 }
 RUN_DEPEND_TAGS = ('depend', 'exec_depend')

@@ -8,9 +8,7 @@ import json
 import math
 import os
 
-from ladrc_sim.headless.runner import run
-from ladrc_sim.headless.scenario import scenario_from_dict
-from ladrc_tools.bags.bag import (
+from ladrc_bags import (
     Bag,
     BagError,
     BagWriter,
@@ -21,8 +19,10 @@ from ladrc_tools.bags.bag import (
     string_msg,
     write_run_bag,
 )
-from ladrc_tools.bags.columns import CdrColumns, NoColumns, fields_of
-from ladrc_tools.bags.typestore import ladrc_typestore
+from ladrc_bags.columns import CdrColumns, NoColumns, fields_of
+from ladrc_bags.typestore import ladrc_typestore
+from ladrc_sim.headless.runner import run
+from ladrc_sim.headless.scenario import scenario_from_dict
 from ladrc_tools.cli import main as ladrc
 import numpy as np
 import pytest
@@ -114,7 +114,7 @@ def _write_velocity_rows(w, clock, at=None, check=None, n=50):
 
 def test_sqlite3_writer_lists_every_complete_segment(tmp_path, monkeypatch):
     clock = [0.0]
-    monkeypatch.setattr('ladrc_tools.bags.writer.time.monotonic', lambda: clock[0])
+    monkeypatch.setattr('ladrc_bags.writer.time.monotonic', lambda: clock[0])
     path = tmp_path / 'split'
     w = BagWriter(path, storage='sqlite3', split_s=1.0)
 
@@ -151,7 +151,7 @@ def _check_velocity_bag(path, n=50):
 def test_mcap_writer_streams_one_file_a_killed_writer_stays_readable(tmp_path, monkeypatch,
                                                                      compression):
     clock = [0.0]
-    monkeypatch.setattr('ladrc_tools.bags.writer.time.monotonic', lambda: clock[0])
+    monkeypatch.setattr('ladrc_bags.writer.time.monotonic', lambda: clock[0])
     path = tmp_path / 'run'
     w = BagWriter(path, flush_s=0.25, compression=compression)
 
@@ -185,7 +185,7 @@ def test_mcap_writer_streams_one_file_a_killed_writer_stays_readable(tmp_path, m
 
 def test_mcap_writer_splits_by_time(tmp_path, monkeypatch):
     clock = [0.0]
-    monkeypatch.setattr('ladrc_tools.bags.writer.time.monotonic', lambda: clock[0])
+    monkeypatch.setattr('ladrc_bags.writer.time.monotonic', lambda: clock[0])
     path = tmp_path / 'split'
     w = BagWriter(path, split_s=1.0)
     _write_velocity_rows(w, clock)
@@ -346,7 +346,7 @@ def test_columns_stream_in_chunks_with_mixed_layouts(tmp_path, monkeypatch):
                 w.write_raw('follow/status', i, row)
     with open_bag(path) as b:
         whole = b.columns('follow/status')
-        monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 7)
+        monkeypatch.setattr('ladrc_bags.reader.COLUMN_CHUNK', 7)
         chunked = b.columns('follow/status')
         some = b.columns('follow/status', ['tick', 'stamp_s'])
     assert whole.keys() == chunked.keys()
@@ -400,7 +400,7 @@ def test_indexed_reader_equals_the_message_by_message_reader(tmp_path, compressi
     chunks, every compression: the same columns, types and values; the indexed path is the
     one taken (it is not silently the other one).
     """
-    from ladrc_tools.bags import reader as B
+    from ladrc_bags import reader as B
 
     store = ladrc_typestore()
     rows = RowPacker('ladrc_msgs/msg/FollowStatus').pack(
@@ -446,7 +446,7 @@ def test_time_slices_hold_consecutive_bag_time(tmp_path, monkeypatch, indexed):
             w.write_raw('sim/truth', i * 500_000 + 7, tr[i])
             if i % 400 == 399:
                 w._mcap.flush()  # ten chunks
-    monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 1000)
+    monkeypatch.setattr('ladrc_bags.reader.COLUMN_CHUNK', 1000)
     with open_bag(path) as b:
         if not indexed:
             b._indexed_files = lambda: None
@@ -502,7 +502,7 @@ def test_report_in_small_slices_equals_one_slice(run_bag, tmp_path, monkeypatch)
     """The report's one pass (truth join, metrics, loss, plot envelope) across many slices."""
     _, path = run_bag
     assert ladrc(['report', str(path), '-o', str(tmp_path / 'one'), '-q']) == 0
-    monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 333)
+    monkeypatch.setattr('ladrc_bags.reader.COLUMN_CHUNK', 333)
     with open_bag(path) as b:
         b._indexed_files = lambda: None  # message by message: many slices
         from ladrc_tools.offline.report import analyse
@@ -529,7 +529,7 @@ def test_segment_close_cost_does_not_grow_with_the_segments(tmp_path, monkeypatc
     import yaml
 
     clock = [0.0]
-    monkeypatch.setattr('ladrc_tools.bags.writer.time.monotonic', lambda: clock[0])
+    monkeypatch.setattr('ladrc_bags.writer.time.monotonic', lambda: clock[0])
     real_dump = yaml.safe_dump
     dumped: list[int] = []  # characters rendered by yaml.safe_dump since the last close
 
@@ -608,7 +608,7 @@ def test_report_of_a_bag_that_starts_idle_for_longer_than_a_slice(tmp_path, monk
             w.write_raw('follow/status', int(round(t[i] * 1e9)), rows[i])
 
     def metrics(chunk: int) -> dict:
-        monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', chunk)
+        monkeypatch.setattr('ladrc_bags.reader.COLUMN_CHUNK', chunk)
         with open_bag(path) as b:
             b._indexed_files = lambda: None  # message by message: slices of `chunk`
             return analyse(b)[0]['metrics']

@@ -19,7 +19,7 @@ from pathlib import Path
 import re
 import sys
 
-from ladrc_tools.bags.bag import BagError, open_bag
+from ladrc_bags import BagError, open_bag
 from ladrc_tools.cli import main as ladrc
 from ladrc_tools.offline import html_report, zoom_data
 from ladrc_tools.offline.codec import (

@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 from xml.etree import ElementTree
 
+from ladrc_bags.layouts import PANELS, config_dir, foxglove_json, plotjuggler_xml
+from ladrc_bags.typestore import ladrc_typestore
 from ladrc_contract.topics import TOPIC_TYPES
-from ladrc_tools.bags.layouts import PANELS, config_dir, foxglove_json, plotjuggler_xml
-from ladrc_tools.bags.typestore import ladrc_typestore
 
 
 def test_shipped_layouts_are_generated():
-    # regenerate with: scripts/in-env python -m ladrc_tools.bags.layouts
+    # regenerate with: scripts/in-env python -m ladrc_bags.layouts
     assert (config_dir() / 'plotjuggler_layout.xml').read_text() == plotjuggler_xml()
     assert (config_dir() / 'foxglove_layout.json').read_text() == foxglove_json()
 

@@ -13,12 +13,12 @@ import json
 import math
 from pathlib import Path
 
+from ladrc_bags import BagWriter, open_bag, rosbags_qos, string_msg, write_run_bag
 from ladrc_contract.qos import TOPIC_QOS
 from ladrc_follow.control.follow import COMMANDS, FollowController
 from ladrc_follow.control.params import ControllerParams, dump_params
 from ladrc_sim.headless.runner import run
 from ladrc_sim.headless.scenario import scenario_from_dict
-from ladrc_tools.bags.bag import BagWriter, open_bag, rosbags_qos, string_msg, write_run_bag
 from ladrc_tools.cli import main as ladrc
 from ladrc_tools.offline.replay import (
     KIND_NAMES,
@@ -335,9 +335,9 @@ def test_streamed_replay_equals_the_whole_run_replay(headless, monkeypatch):
     _, path = headless
     rec = load_recording(path)
     whole = compare(rec, replay(rec))
-    monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 301)
+    monkeypatch.setattr('ladrc_bags.reader.COLUMN_CHUNK', 301)
     # message by message: many slices
-    monkeypatch.setattr('ladrc_tools.bags.bag.Bag._indexed_files', lambda self: None)
+    monkeypatch.setattr('ladrc_bags.Bag._indexed_files', lambda self: None)
     monkeypatch.setattr('ladrc_tools.offline.recording.CHUNK_TICKS', 257)
     srec = open_recording(path)
     assert srec.ticks is None and srec.n_ticks == rec.ticks.size
@@ -382,7 +382,7 @@ def test_streamed_join_finds_late_out_of_order_and_repeated_commands(tmp_path, m
 
     The streamed join, in slices of 37 messages, equals the join over the whole run.
     """
-    from ladrc_tools.bags.bag import RowPacker, open_bag
+    from ladrc_bags import RowPacker, open_bag
     import ladrc_tools.offline.recording as R
 
     rng = np.random.default_rng(7)
@@ -411,8 +411,8 @@ def test_streamed_join_finds_late_out_of_order_and_repeated_commands(tmp_path, m
     with open_bag(path) as b:
         ref = R._join_commands(b.columns('follow/status', R.REPLAY_FIELDS),
                                b.columns('axis/velocity_command', R.CMD_FIELDS))
-    monkeypatch.setattr('ladrc_tools.bags.bag.Bag._indexed_files', lambda self: None)
-    monkeypatch.setattr('ladrc_tools.bags.reader.COLUMN_CHUNK', 37)
+    monkeypatch.setattr('ladrc_bags.Bag._indexed_files', lambda self: None)
+    monkeypatch.setattr('ladrc_bags.reader.COLUMN_CHUNK', 37)
     parts = list(R._stream_batches(path, None))
     assert len(parts) > 1
     assert np.array_equal(np.concatenate([p.command for p in parts]), ref.command)

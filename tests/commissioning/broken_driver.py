@@ -35,7 +35,7 @@ import sys
 import tempfile
 
 ROOT = Path(__file__).resolve().parents[2]
-for _pkg in ('ladrc_sim', 'ladrc_tools', 'ladrc_follow'):
+for _pkg in ('ladrc_sim', 'ladrc_tools', 'ladrc_bags', 'ladrc_follow'):
     _src = str(ROOT / 'ros2_ws' / 'src' / _pkg)
     if _src not in sys.path:
         sys.path.insert(0, _src)

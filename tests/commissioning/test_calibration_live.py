@@ -34,6 +34,7 @@ _spec = importlib.util.spec_from_file_location(
 _ros = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_ros)  # sets ROS_DOMAIN_ID / localhost discovery for this session
 
+from ladrc_bringup.bringup import executable_path  # noqa: E402
 from ladrc_msgs.msg import (  # noqa: E402
     AxisFeedback,
     CapacitiveHeight,
@@ -41,7 +42,6 @@ from ladrc_msgs.msg import (  # noqa: E402
     SimTruth,
 )
 from ladrc_msgs.srv import Calibrate, StartFollow, StopFollow  # noqa: E402
-from ladrc_tools.bringup.bringup import executable_path  # noqa: E402
 from ladrc_tools.commissioning.calibration import (  # noqa: E402
     SweepMotion,
     run_headless,
@@ -141,7 +141,7 @@ def test_ladrc_calibrate_on_the_sim_node(nodes, tmp_path):
 def test_calibrate_service(nodes, tmp_path):
     n, probe = nodes
     _start_sim(n, _sim_scenario_file(tmp_path, 2.5, SweepMotion()))
-    n.start('calibrate', 'ladrc_tools', 'calibrate_node', '-p', 'descent_mm_s:=1.0',
+    n.start('calibrate', 'ladrc_bringup', 'calibrate_node', '-p', 'descent_mm_s:=1.0',
             '-p', 'min_start_gap_mm:=1.0', '-p', f'stale_timeout_s:={TIMEOUT_S}',
             '-p', f'output_root:={tmp_path}', '-p', 'lockstep:=true')
     results: list[dict] = []

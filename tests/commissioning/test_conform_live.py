@@ -30,7 +30,7 @@ import signal
 import subprocess
 import sys
 
-from ladrc_tools.bags.bag import open_bag
+from ladrc_bags import open_bag
 from ladrc_tools.commissioning.conformance import RULE_NAMES
 from ladrc_tools.commissioning.pytest_conformance import driver_conformance  # noqa: F401
 import pytest

@@ -10,9 +10,9 @@ import io
 import json
 import math
 
+from ladrc_bags import BagWriter, write_run_bag
 from ladrc_follow.analysis.gate import check_gate
 from ladrc_follow.control.params import load_params
-from ladrc_tools.bags.bag import BagWriter, write_run_bag
 from ladrc_tools.cli import main
 from ladrc_tools.commissioning.excitation import H_S, Excitation
 from ladrc_tools.commissioning.identify import (

@@ -22,7 +22,7 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ROOT / 'ros2_ws' / 'src' / 'ladrc_tools' / 'config' / 'follow.yaml'
+SHIPPED = ROOT / 'ros2_ws' / 'src' / 'ladrc_bringup' / 'config' / 'follow.yaml'
 
 
 def test_defaults_are_valid_and_seed_faithful():

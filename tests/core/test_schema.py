@@ -104,6 +104,6 @@ def test_docs_table_is_generated_from_the_declarations():
 
 
 def test_shipped_parameter_file_is_generated_from_the_declarations():
-    shipped = ROOT / 'ros2_ws' / 'src' / 'ladrc_tools' / 'config' / 'follow.yaml'
+    shipped = ROOT / 'ros2_ws' / 'src' / 'ladrc_bringup' / 'config' / 'follow.yaml'
     assert shipped.read_text(encoding='utf-8') == parameter_file(), (
         'config/follow.yaml is stale: regenerate it with `scripts/in-env ladrc params --yaml`')

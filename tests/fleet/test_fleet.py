@@ -12,18 +12,18 @@ import shutil
 import subprocess
 import sys
 
-from ladrc_tools.bags.bag import open_bag
-from ladrc_tools.bags.provenance import (
+from ladrc_bags import open_bag
+from ladrc_bags.provenance import (
     MACHINE_KEY,
     PARAMS_KEY,
     START_KEY,
     param_hash,
     read_provenance,
 )
-from ladrc_tools.fleet.bag_task import bag_row
-from ladrc_tools.fleet.discover import find_bags
-from ladrc_tools.fleet.generate import FleetSpec, plan, write_bag, write_truth
-from ladrc_tools.fleet.run import run_fleet
+from ladrc_fleet.bag_task import bag_row
+from ladrc_fleet.discover import find_bags
+from ladrc_fleet.generate import FleetSpec, plan, write_bag, write_truth
+from ladrc_fleet.run import run_fleet
 from ladrc_tools.offline.report import analyse
 import pytest
 
@@ -169,9 +169,9 @@ def test_bad_bags_are_rows_with_their_reason_and_the_exit_code_says_so(fleet, tm
 
 
 def test_the_recorder_writes_machine_start_version_and_the_first_parameter_sets_hash(tmp_path):
-    from ladrc_tools.bags.typestore import ladrc_typestore
-    from ladrc_tools.bags.writer import string_msg
-    from ladrc_tools.node.recorder_node import Recorder
+    from ladrc_bags.recorder_node import Recorder
+    from ladrc_bags.typestore import ladrc_typestore
+    from ladrc_bags.writer import string_msg
 
     store = ladrc_typestore()
 
@@ -191,7 +191,7 @@ def test_the_recorder_writes_machine_start_version_and_the_first_parameter_sets_
 
 def test_a_sweep_in_parts_on_the_engine_equals_the_sweep_on_one_core():
     from ladrc_follow.control.params import ControllerParams
-    from ladrc_tools.fleet.engine import client
+    from ladrc_tools.offline.engine import client
     from ladrc_tools.offline.tune import sweep, sweep_on
 
     base = ControllerParams()
@@ -240,7 +240,7 @@ def test_tune_on_the_engine_writes_the_set_tune_on_one_core_writes(tmp_path):
 def test_the_fleet_shows_its_progress_on_a_terminal_and_nothing_piped(monkeypatch):
     import io
 
-    from ladrc_tools.cli_fleet import progress_line
+    from ladrc_fleet.cli import progress_line
 
     class Terminal(io.StringIO):
         def isatty(self) -> bool:
@@ -261,7 +261,7 @@ def test_an_existing_cluster_by_address_gives_the_rows_of_the_local_one(fleet, r
     import signal
     import time
 
-    from ladrc_tools.fleet.engine import client
+    from ladrc_tools.offline.engine import client
 
     root, _ = fleet
     tree = tmp_path / 'tree'

@@ -332,7 +332,7 @@ def test_a_dxf2gcode_program_runs_to_its_end(tmp_path):
 
 
 def test_the_bring_ups_verdict_on_the_displays_events():
-    from ladrc_tools.bringup.linuxcnc_run import early_end, program_error
+    from ladrc_bringup.linuxcnc_run import early_end, program_error
 
     events = [{'t': 10.0, 'event': 'filter'}, {'t': 10.5, 'event': 'check', 'cut_requests': 3},
               {'t': 12.0, 'event': 'run'}, {'t': 15.0, 'event': 'idle', 'line': 17}]

@@ -27,7 +27,7 @@ _BASE = int(os.environ.get('LADRC_TEST_DOMAIN_BASE', '1'))
 _SPAN = int(os.environ.get('LADRC_TEST_DOMAIN_SPAN',
                            50 if 'LADRC_TEST_DOMAIN_BASE' in os.environ else 101))
 os.environ['ROS_DOMAIN_ID'] = str(_BASE + os.getpid() % _SPAN)
-from ladrc_tools.bringup.bringup import loopback_settings  # noqa: E402
+from ladrc_bringup.bringup import loopback_settings  # noqa: E402
 
 # this machine only: the shipped loopback profile, whatever the environment says (docs/safety.md)
 os.environ.pop('FASTRTPS_DEFAULT_PROFILES_FILE', None)

@@ -6,9 +6,9 @@ from msgfill import cdr_padding, fill_rclpy, to_rosbags
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
+from ladrc_bags.typestore import ladrc_typestore, msg_definitions  # noqa: E402
 from ladrc_contract.cdr import CdrPacker, flat_fields  # noqa: E402
 import ladrc_msgs.msg  # noqa: E402
-from ladrc_tools.bags.typestore import ladrc_typestore, msg_definitions  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 
 MESSAGES = sorted(name.rsplit('/', 1)[1] for name in msg_definitions())

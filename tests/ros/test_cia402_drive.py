@@ -28,7 +28,8 @@ import pytest
 pytest.importorskip('rclpy')
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
+BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_bringup' / 'lib' / 'ladrc_bringup'
+TOOLS = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
 pytestmark = pytest.mark.ros
 HANG_S = 900  # a hang, not a speed: lock step is slower on a loaded machine, never different
 
@@ -51,7 +52,7 @@ def last_json(text: str) -> dict:
 
 
 def test_the_step_scenario_through_the_cia402_drive_in_lock_step(tmp_path):
-    from ladrc_tools.bags.bag import open_bag
+    from ladrc_bags import open_bag
 
     bag, logs = tmp_path / 'bag', tmp_path / 'logs'
     res = run([str(BIN / 'bringup'), '--drive', 'cia402', '--scenario', 'step', '--lockstep',
@@ -82,12 +83,12 @@ def test_the_step_scenario_through_the_cia402_drive_in_lock_step(tmp_path):
     en = fb['drive_enabled'].astype(bool)
     assert not en[0] and en[10:].all()
 
-    rep = run([str(BIN / 'ladrc'), 'report', str(bag), '-q'])
+    rep = run([str(TOOLS / 'ladrc'), 'report', str(bag), '-q'])
     assert rep.returncode == 0, rep.stdout[-2000:]
     live = last_json(rep.stdout)
     assert live['collisions'] == 0 and live['messages_lost'] == 0
 
-    replay = run([str(BIN / 'ladrc'), 'replay', str(bag)])
+    replay = run([str(TOOLS / 'ladrc'), 'replay', str(bag)])
     line = last_json(replay.stdout)
     assert replay.returncode == 0 and line['mismatches'] == 0 and line['ticks'] == n, \
         replay.stdout[-2000:]
@@ -106,8 +107,8 @@ def test_the_step_scenario_through_the_cia402_drive_in_lock_step(tmp_path):
 
 def test_a_drive_that_is_not_ours_from_its_device_file_in_lock_step(tmp_path):
     """Drive C: heartbeat watchdog, arrays per motor, the gap on a CiA 401 node (same SYNC)."""
+    from ladrc_bags import open_bag
     from ladrc_cia402.device_file import load_device, make_plan
-    from ladrc_tools.bags.bag import open_bag
 
     device = ROOT / 'ros2_ws' / 'src' / 'ladrc_cia402' / 'examples' / 'hub_c_io401.yaml'
     bag, logs = tmp_path / 'bag', tmp_path / 'logs'
@@ -127,10 +128,10 @@ def test_a_drive_that_is_not_ours_from_its_device_file_in_lock_step(tmp_path):
     gap = open_bag(bag).columns('axis/capacitive_height', ['valid'])
     assert gap['valid'].astype(bool).mean() > 0.99  # the I/O node's TPDO of every SYNC
 
-    rep = run([str(BIN / 'ladrc'), 'report', str(bag), '-q'])
+    rep = run([str(TOOLS / 'ladrc'), 'report', str(bag), '-q'])
     live = last_json(rep.stdout)
     assert rep.returncode == 0 and live['collisions'] == 0
-    replay = run([str(BIN / 'ladrc'), 'replay', str(bag)])
+    replay = run([str(TOOLS / 'ladrc'), 'replay', str(bag)])
     line = last_json(replay.stdout)
     assert replay.returncode == 0 and line['mismatches'] == 0 and line['ticks'] == n
 

@@ -8,7 +8,7 @@ import subprocess
 import pytest
 
 pytest.importorskip('ladrc_msgs', reason='needs the built workspace (make test)')
-from ladrc_tools.bringup.bringup import executable_path  # noqa: E402
+from ladrc_bringup.bringup import executable_path  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import (  # noqa: E402
     DescribeParameters,

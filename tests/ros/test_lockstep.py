@@ -18,14 +18,15 @@ import subprocess
 import time
 
 from bagdiff import diff_bags
-from ladrc_tools.bags.bag import open_bag
+from ladrc_bags import open_bag
 import pytest
 
 pytest.importorskip('rclpy')
 from ladrc_sim.node.drive_bridge import WIND_DOWN_TICKS  # noqa: E402 (after the skip)
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
+BIN = ROOT / 'ros2_ws' / 'install' / 'ladrc_bringup' / 'lib' / 'ladrc_bringup'
+TOOLS = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools'
 pytestmark = pytest.mark.ros
 
 TOPICS = ['axis/capacitive_height', 'axis/feedback', 'axis/velocity_command', 'follow/status',
@@ -107,7 +108,7 @@ def assert_equal_bags(headless: Path, live: Path, n: int, wind_down: bool = Fals
 def test_live_lockstep_equals_headless(tmp_path, scenario):
     live, headless = tmp_path / 'live', tmp_path / 'headless'
     live_run = lockstep_run(scenario, live, tmp_path / 'logs')
-    res = run([str(BIN / 'ladrc'), 'simulate', scenario, '-o', str(headless)])
+    res = run([str(TOOLS / 'ladrc'), 'simulate', scenario, '-o', str(headless)])
     assert res.returncode == 0, res.stdout[-2000:]
 
     # the headless run has one command per tick; the live controller adds its zero commands
@@ -120,7 +121,7 @@ def test_live_lockstep_equals_headless(tmp_path, scenario):
 
     if scenario == 'showcase':
         # a live bag replays through the core bit for bit (ladrc replay), its wind-down too
-        rep = run([str(BIN / 'ladrc'), 'replay', str(live)])
+        rep = run([str(TOOLS / 'ladrc'), 'replay', str(live)])
         line = json.loads(rep.stdout.strip().splitlines()[-1])
         assert rep.returncode == 0 and line['mismatches'] == 0, rep.stdout[-2000:]
         assert line['missing_ticks'] == 0 and line['ticks'] == n + WIND_DOWN_TICKS, line
@@ -182,7 +183,7 @@ def test_live_lockstep_job_equals_headless(tmp_path, job, separate):
     live, headless = tmp_path / 'live', tmp_path / 'headless'
     flag = ('--separate-cnc',) if separate else ()
     figures = lockstep_run(name, live, tmp_path / 'logs', '--job', flag)
-    res = run([str(BIN / 'ladrc'), 'job', name, '-o', str(headless), *flag])
+    res = run([str(TOOLS / 'ladrc'), 'job', name, '-o', str(headless), *flag])
     assert res.returncode == 0, res.stdout[-2000:]
     head = json.loads(res.stdout.strip().splitlines()[-1])
     for key in JOB_FIGURES:  # (JSON: the contours' keys are text in both)
@@ -222,8 +223,8 @@ def test_a_recorder_behind_at_the_end_of_a_run_loses_nothing(tmp_path):
     played its scenario: a reliable writer repairs only while it exists, so without the wait
     the bag would lose the run's last samples.
     """
-    from ladrc_tools.bags.bag import open_bag
-    from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs
+    from ladrc_bags import open_bag
+    from ladrc_bringup.bringup import Bringup, isolated_env, node_specs
 
     scenario = tmp_path / 'lockstep_end.yaml'
     scenario.write_text(SHORT)

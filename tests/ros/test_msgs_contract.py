@@ -9,7 +9,7 @@ from msgfill import cdr_padding, fill_rclpy, to_plain, to_rosbags
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-from ladrc_tools.bags.typestore import ladrc_typestore, msg_definitions  # noqa: E402
+from ladrc_bags.typestore import ladrc_typestore, msg_definitions  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip('ladrc_msgs', reason='needs the built workspace (make test)')
+from ladrc_bringup.bringup import Bringup, isolated_env, node_specs  # noqa: E402
 from ladrc_msgs.msg import FollowStatus  # noqa: E402
 from ladrc_msgs.srv import StartFollow  # noqa: E402
-from ladrc_tools.bringup.bringup import Bringup, isolated_env, node_specs  # noqa: E402
 from rosnodes import Probe  # noqa: E402
 from sockets import exposed, sockets  # noqa: E402
 import sros2_policy  # noqa: E402

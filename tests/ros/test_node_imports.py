@@ -28,9 +28,11 @@ print(json.dumps({'file': mod.__file__,
 
 @pytest.mark.parametrize(('module', 'package', 'forbidden'), [
     ('ladrc_follow.node.follow_node', 'ladrc_follow',
-     {'rosbags', 'ladrc_sim', 'ladrc_tools', 'matplotlib', 'scipy'}),
+     {'rosbags', 'ladrc_sim', 'ladrc_bags', 'ladrc_tools', 'ladrc_bringup', 'ladrc_fleet',
+      'matplotlib', 'scipy'}),
     ('ladrc_sim.node.sim_node', 'ladrc_sim',
-     {'rosbags', 'ladrc_follow', 'ladrc_tools', 'matplotlib'}),
+     {'rosbags', 'ladrc_follow', 'ladrc_bags', 'ladrc_tools', 'ladrc_bringup', 'ladrc_fleet',
+      'matplotlib'}),
 ])
 def test_node_module_loads_only_its_layer(module, package, forbidden):
     env = dict(os.environ)

@@ -13,12 +13,12 @@ import time
 import pytest
 
 pytest.importorskip('rclpy')
+from ladrc_bags import open_bag  # noqa: E402
 from ladrc_contract.topics import SEQ_FIELD, TOPIC_TYPES  # noqa: E402
-from ladrc_tools.bags.bag import open_bag  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-RECORDER = ROOT / 'ros2_ws' / 'install' / 'ladrc_tools' / 'lib' / 'ladrc_tools' / 'recorder'
+RECORDER = ROOT / 'ros2_ws' / 'install' / 'ladrc_bags' / 'lib' / 'ladrc_bags' / 'recorder'
 PUB = Path(__file__).with_name('recorder_pub.py')
 
 pytestmark = pytest.mark.ros

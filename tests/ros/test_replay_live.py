@@ -65,7 +65,7 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
     probe = None
     try:
         # recorder first, so the bag holds the run from the follow node's first ticks
-        nodes.start('recorder', 'ladrc_tools', 'recorder', '-p', f'output:={bag}',
+        nodes.start('recorder', 'ladrc_bags', 'recorder', '-p', f'output:={bag}',
                     '-p', 'reliable:=true', '-p', 'machine_id:=cutter-live')
         nodes.start('follow', 'ladrc_follow', 'follow_node', '-p', 'loop:=lockstep')
         # the sim starts stepping once the recorder reads sim/truth and discovery settled
@@ -143,8 +143,8 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
 
     # The bag says where it comes from: the machine, and the set the run started with (the
     # parameter change re-published run/parameters; the hash is the first text's)
-    from ladrc_tools.bags.bag import open_bag, read_first_text, read_text_topic
-    from ladrc_tools.bags.provenance import param_hash, read_provenance
+    from ladrc_bags import open_bag, read_first_text, read_text_topic
+    from ladrc_bags.provenance import param_hash, read_provenance
 
     with open_bag(bag) as b:
         prov = read_provenance(b)

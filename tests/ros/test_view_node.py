@@ -35,9 +35,9 @@ pytest.importorskip('ladrc_msgs', reason='needs the built workspace (make test)'
 pytest.importorskip('foxglove', reason='needs foxglove-sdk (requirements/python.txt)')
 pytest.importorskip('websockets', reason='needs websockets (requirements/dev.txt)')
 from foxglove_client import FoxgloveClient, ServiceCallFailure  # noqa: E402
-from ladrc_tools.bags.bag import open_bag  # noqa: E402
-from ladrc_tools.bags.layouts import TITLE, config_dir, foxglove_json  # noqa: E402
-from ladrc_tools.bringup.bringup import (  # noqa: E402
+from ladrc_bags import open_bag  # noqa: E402
+from ladrc_bags.layouts import TITLE, config_dir, foxglove_json  # noqa: E402
+from ladrc_bringup.bringup import (  # noqa: E402
     Bringup,
     executable_path,
     isolated_env,
@@ -57,7 +57,7 @@ import sros2_policy  # noqa: E402
 
 pytestmark = pytest.mark.ros
 SCENARIOS = Path(__file__).parent / 'scenarios'
-BIN = Path(executable_path('ladrc_tools', 'bringup')).parent
+BIN = Path(executable_path('ladrc_bringup', 'bringup')).parent
 INTERVAL_NS = 20_000_000  # the default display rate, 50 Hz
 
 
@@ -312,7 +312,7 @@ def _keys(cls: type) -> set[str]:
 
 def test_the_shipped_layout_uses_known_settings_and_fields_of_both_sources():
     import foxglove.layouts as fl
-    from ladrc_tools.bags.typestore import ladrc_typestore
+    from ladrc_bags.typestore import ladrc_typestore
 
     layout = json.loads((config_dir() / 'foxglove_layout.json').read_text())
     assert layout == json.loads(foxglove_json())

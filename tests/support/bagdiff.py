@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ladrc_tools.bags.bag import open_bag
+from ladrc_bags import open_bag
 import numpy as np
 
 

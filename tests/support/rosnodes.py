@@ -22,7 +22,7 @@ import time
 from typing import Callable
 import weakref
 
-from ladrc_tools.bringup.bringup import executable_path, interrupt_process
+from ladrc_bringup.bringup import executable_path, interrupt_process
 
 # QoS of a recording (probe_node.py): the contract's 2 kHz topics are best effort
 # (docs/interfaces.md): a test reader matches that, with a deep history (1000) so a slow probe

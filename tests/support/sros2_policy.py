@@ -13,7 +13,7 @@ from pathlib import Path
 import xml.etree.ElementTree as ET
 
 ROOT = Path(__file__).resolve().parents[2]
-POLICY = ROOT / 'ros2_ws' / 'src' / 'ladrc_tools' / 'config' / 'sros2_policy.xml'
+POLICY = ROOT / 'ros2_ws' / 'src' / 'ladrc_bringup' / 'config' / 'sros2_policy.xml'
 SCHEMA = ROOT / 'tests' / 'vendor' / 'sros2' / 'policy.xsd'
 # (element, attribute) -> the kind of endpoint it allows
 KINDS = {('topics', 'publish'): 'publishers', ('topics', 'subscribe'): 'subscriptions',

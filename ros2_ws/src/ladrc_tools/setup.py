@@ -1,5 +1,3 @@
-from glob import glob
-
 from setuptools import find_packages, setup
 
 package_name = 'ladrc_tools'
@@ -15,24 +13,18 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config',
-         glob('config/*.yaml') + glob('config/*.xml') + glob('config/*.json')),
-        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},
     zip_safe=True,
     maintainer='LADRC follow maintainers',
     maintainer_email='maintainers@ladrc-follow.org',
-    description='Recorder, bags, replay, report, suite and bring-up of the LADRC height follow.',
+    description='Offline analysis, commissioning, CAM post, live view and the ladrc command '
+                'of the LADRC height follow.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'ladrc = ladrc_tools.cli:main',
-            'recorder = ladrc_tools.node.recorder_node:main',
-            'bringup = ladrc_tools.bringup.bringup:main',
-            'cia402_stack = ladrc_tools.bringup.cia402_stack:main',
-            'calibrate_node = ladrc_tools.node.calibrate_node:main',
             'view_node = ladrc_tools.node.view_node:main',
         ],
     },

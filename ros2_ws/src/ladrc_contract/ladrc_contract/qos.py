@@ -1,7 +1,7 @@
 """The contract's QoS profiles, as data (docs/interfaces.md, "QoS").
 
 One definition: the nodes turn a profile into an rclpy ``QoSProfile`` with :func:`to_rclpy`,
-the bag writer into the ``offered_qos_profiles`` it stores (``ladrc_tools.bags``), and
+the bag writer into the ``offered_qos_profiles`` it stores (``ladrc_bags``), and
 tests/test_contract_once.py fails when a QoS profile is made anywhere else.
 
 * High-rate publishers (sensor, feedback, command, status, truth): BEST_EFFORT, VOLATILE,

@@ -1,7 +1,8 @@
-"""Tools around the controller and the simulator: bags, offline analysis, recorder, bring-up.
+"""Tools around the controller and the simulator: offline analysis, commissioning, CAM post, CLI.
 
-``bags/`` and ``offline/`` never import rclpy; ``node/`` (the recorder) and ``bringup/`` (node
-processes) are the ROS side. ``cli.py`` is the ``ladrc`` command.
+``offline/`` (reports, replay, export, suite, tune), ``commissioning/`` (identification,
+calibration tables, the conformance rules), ``cam/`` (the LinuxCNC post-processor) never import
+rclpy; ``node/`` (the live view) is the ROS side. ``cli.py`` is the ``ladrc`` command. Bags are
+ladrc_bags'; the bring-up and the runs that start node processes are ladrc_bringup's; the fleet
+tools are ladrc_fleet's (docs/architecture.md, "Packages").
 """
-
-__version__ = '0.1.0'  # as package.xml and setup.py (bags/provenance.py)

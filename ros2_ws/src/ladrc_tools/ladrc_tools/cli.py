@@ -1,7 +1,9 @@
 """``ladrc``: the user CLI (simulate, replay, report, export, suite, params, analyze, tune, ...).
 
-Every subcommand is one entry of :data:`COMMANDS` (name -> (help, add-arguments, run)); add a
-subcommand by adding an entry. Bad input (missing file, truncated/foreign bag, missing topic,
+Every subcommand of this package is one entry of :data:`COMMANDS` (name -> :class:`Command`:
+help, add-arguments, run); the packages above it add theirs under the entry-point group
+``ladrc.commands`` (ladrc_bringup: conform, calibrate; ladrc_fleet: fleet, fleet-gen), found by
+:func:`commands`. Bad input (missing file, truncated/foreign bag, missing topic,
 unknown parameter) ends with ONE line on stderr and exit code 2, no traceback, and nothing
 half-written (outputs are built under a temporary name and renamed when complete).
 """
@@ -9,23 +11,14 @@ half-written (outputs are built under a temporary name and renamed when complete
 from __future__ import annotations
 
 import argparse
+from importlib.metadata import entry_points
 import sys
-from typing import Callable
 
-from .bags.bag import BagError
+from ladrc_bags import BagError
+
 from .cli_cia402 import _add_cia402, _run_cia402
-from .cli_commissioning import (
-    _add_calibrate,
-    _add_conform,
-    _add_excite,
-    _add_identify,
-    _run_calibrate,
-    _run_conform,
-    _run_excite,
-    _run_identify,
-)
-from .cli_common import EXIT_USAGE, CliError
-from .cli_fleet import _add_fleet, _add_fleet_gen, _run_fleet, _run_fleet_gen
+from .cli_commissioning import _add_excite, _add_identify, _run_excite, _run_identify
+from .cli_common import COMMAND_GROUP, EXIT_USAGE, CliError, Command
 from .cli_job import _add_job, _add_post, _run_job, _run_post
 from .cli_offline import (
     _add_analyze,
@@ -48,14 +41,13 @@ from .cli_offline import (
     parameters_doc,
 )
 
-__all__ = ['COMMANDS', 'CliError', 'EXIT_USAGE', 'build_parser', 'main', 'make_controller',
-           'parameters_doc']
+__all__ = ['COMMANDS', 'CliError', 'Command', 'EXIT_USAGE', 'build_parser', 'commands', 'main',
+           'make_controller', 'parameters_doc']
 
 
 # ---- the subcommands ----------------------------------------------------------------------
-# name -> (help, add arguments, run). Extend here.
-COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
-                          Callable[[argparse.Namespace], int]]] = {
+# name -> (help, add arguments, run). Extend here (or, from a package above: ladrc.commands).
+_TABLE = {
     'simulate': ('run a scenario headless (no ROS), print metrics, optionally write a bag',
                  _add_simulate, _run_simulate),
     'report': ('metrics, loop timing, loss and plots of a bag (report.md, report.json, PNGs)',
@@ -76,25 +68,12 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
                  'params.yaml)', _add_identify, _run_identify),
     'excite': ('play an excitation (PRBS, chirp) on the headless sim, no controller, and '
                'write the bag (the input of identify)', _add_excite, _run_excite),
-    'conform': ('check a driver against the contract (topics, QoS, rate, seq, stamps, units '
-                'and signs, enable, watchdog) rule by rule; report.md, conform.json and the '
-                'motion-test bag', _add_conform, _run_conform),
-    'calibrate': ('capacitive calibration: descend slowly to contact, retract, build, check '
-                  'and grade the raw → gap table (cap_table.yaml, calibration.md/.json/.png)',
-                  _add_calibrate, _run_calibrate),
     'job': ('run a cutting job headless (sheet in XY, part program from DXF, the simulated '
             'CNC): per-job figures; --compare a CNC-partner feature on and off; -o job.png',
             _add_job, _run_job),
     'post': ("a job's part program as G-code for LinuxCNC (pre-offset path, M3/M5 $0, G64 P, "
              'M62/M63 P2 around the edge-ahead holds): bringup --cnc linuxcnc runs it',
              _add_post, _run_post),
-    'fleet': ("a fleet's bags (folders, globs) on a Dask cluster: one row per bag, machine-day "
-              'and machine (Parquet), machines and days that stand out flagged with the rule, '
-              'parameter-set changes before/after; fleet.md with plots; only new bags are '
-              'computed again', _add_fleet, _run_fleet),
-    'fleet-gen': ('generate a fleet of simulated machines over days (headless bags with '
-                  'machine ids and dates; a few machines degrading; a parameter change)',
-                  _add_fleet_gen, _run_fleet_gen),
     'cia402': ("a CiA 402 drive's plan before power (plan DEVICE.yaml): SDO writes, PDO "
                'layouts, watchdog, bus load; or the first refusal in one line',
                _add_cia402, _run_cia402),
@@ -102,6 +81,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None],
               "(suite.md, suite.json, suite.csv) beside the notes' measured figures",
               _add_suite, _run_suite),
 }
+COMMANDS: dict[str, Command] = {name: Command(*entry) for name, entry in _TABLE.items()}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -109,13 +89,24 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f'{self.prog}: {message}\n')
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the ``ladrc`` argument parser with one subparser per :data:`COMMANDS` entry."""
+def commands() -> dict[str, Command]:
+    """Return :data:`COMMANDS` and the registered subcommands (group ``ladrc.commands``)."""
+    found = dict(COMMANDS)
+    for ep in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
+        found.setdefault(ep.name, Command(*ep.load()))
+    return found
+
+
+def build_parser(table: dict[str, Command] | None = None) -> argparse.ArgumentParser:
+    """Return the ``ladrc`` argument parser with one subparser per subcommand of ``table``.
+
+    ``table`` defaults to :func:`commands`.
+    """
     parser = _Parser(prog='ladrc', description='LADRC height-follow tools: headless '
                      'simulation, bag replay, reports, CSV export and the quality suite.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND', required=True,
                                 parser_class=_Parser)
-    for name, (help_text, add, _) in COMMANDS.items():
+    for name, (help_text, add, _) in (commands() if table is None else table).items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         add(p)
     return parser
@@ -123,9 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ladrc`` console script."""
-    args = build_parser().parse_args(argv)
+    table = commands()
+    args = build_parser(table).parse_args(argv)
     try:
-        return COMMANDS[args.command][2](args)
+        return table[args.command].run(args)
     except (CliError, BagError) as exc:
         print(f'ladrc {args.command}: {exc}', file=sys.stderr)
         return EXIT_USAGE

@@ -110,10 +110,9 @@ def run(job: Any, off: list[str], record_internals: bool = False,
 
 def write_bag(job: Any, result: Any, path: Path) -> None:
     """Write a job run as a bag: the live layout, the job file and its DXF in run/scenario."""
+    from ladrc_bags import write_run_bag
     from ladrc_follow.control.params import dump_params
     from ladrc_sim.job.jobfile import run_text
-
-    from .bags.bag import write_run_bag
 
     write_run_bag(result.as_run(), path, dump_params(result.params), run_text(job))
 

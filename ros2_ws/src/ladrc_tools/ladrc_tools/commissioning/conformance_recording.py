@@ -1,6 +1,6 @@
 """What the conformance prober recorded of a driver: the graph, the samples, the plan played.
 
-Plain arrays and dataclasses (no rclpy): the live prober (``ladrc_tools/node/conform_node.py``)
+Plain arrays and dataclasses (no rclpy): the live prober (``ladrc_bringup/conform_node.py``)
 fills a :class:`Recording`; the rules (:mod:`.conformance_rules`) judge it. Times are integers
 in ns of ROS time (the system clock): ``recv_ns`` is when DDS received a sample (rmw
 ``received_timestamp``), ``stamp_ns`` the driver's header stamp, ``pub_seq`` the DDS writer's

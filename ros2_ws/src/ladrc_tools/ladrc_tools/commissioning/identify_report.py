@@ -15,9 +15,9 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ladrc_bags import BagError, open_bag
 import numpy as np
 
-from ..bags.bag import BagError, open_bag
 from .identify import AxisFit, IdentifyError, axis_series, fit_axis
 from .identify_sensor import SensorFit, fit_sensor, position_estimate, sensor_series
 from .identify_suggest import Suggestion, suggest

@@ -138,7 +138,7 @@ def run_excitation(data: dict[str, Any], excitation: Excitation,
 
 def write_bag(run_: ExcitationRun, path: str | Path, storage: str = 'mcap') -> Path:
     """Write the run as a bag with the headless bag writer (never overwrites)."""
-    from ..bags.bag import write_run_bag
+    from ladrc_bags import write_run_bag
 
     return write_run_bag(run_.result, path, '', run_.scenario_yaml, storage=storage,
                          controller='excitation')

@@ -1,1 +1,1 @@
-"""ROS layer of the tools: the bag recorder node."""
+"""ROS layer of the tools: the live view node (Foxglove WebSocket)."""

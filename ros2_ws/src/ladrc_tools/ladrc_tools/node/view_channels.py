@@ -1,7 +1,7 @@
 """The live view's channels and their decimation: numpy per batch, no rclpy, no foxglove.
 
 The view node (:mod:`.view_node`) takes the contract's topics in batches (raw CDR, decoded into
-columns by :class:`~ladrc_tools.bags.columns.CdrColumns`) and turns each 2 kHz topic into what a
+columns by :class:`~ladrc_bags.columns.CdrColumns`) and turns each 2 kHz topic into what a
 screen shows, on a channel named as the topic (``/follow/status``, so that one Foxglove layout
 serves the live view and a bag):
 

@@ -5,7 +5,7 @@
     bringup --scenario showcase --view [--view-port N]  # started with the node set
 
 Open Foxglove, *Open connection* -> Foxglove WebSocket ``ws://127.0.0.1:8765``, and import the
-shipped layout ``share/ladrc_tools/config/foxglove_layout.json`` (docs/live-view.md).
+shipped layout ``share/ladrc_bags/config/foxglove_layout.json`` (docs/live-view.md).
 
 What it serves (``foxglove-sdk``'s WebSocket server, JSON channels with JSON schemas):
 
@@ -154,12 +154,12 @@ class LiveView:
 
     def __init__(self, node: Any, settings: ViewSettings) -> None:
         import foxglove
+        from ladrc_bags.columns import CdrColumns
+        from ladrc_bags.typestore import ladrc_typestore
         from ladrc_contract import qos
         from ladrc_contract.qos import to_rclpy
         from ladrc_contract.services import FOLLOW_SERVICES, service_class
 
-        from ..bags.columns import CdrColumns
-        from ..bags.typestore import ladrc_typestore
         from .recorder_node import _msg_class
 
         self.node, self.settings = node, settings

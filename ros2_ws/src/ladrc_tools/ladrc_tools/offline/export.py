@@ -12,9 +12,9 @@ import csv
 from pathlib import Path
 from typing import Callable, Iterable
 
+from ladrc_bags import BagError, open_bag
 import numpy as np
 
-from ..bags.bag import BagError, open_bag
 from .outdir import building
 
 EXPORT_CHUNK = 8192

@@ -27,7 +27,8 @@ import math
 from pathlib import Path
 from typing import Any, Iterator
 
-from ..bags.bag import BagError
+from ladrc_bags import BagError
+
 from .zoom_data import ZoomData
 
 POINTS_PER_PX = 3

@@ -20,11 +20,10 @@ from pathlib import Path
 import tempfile
 from typing import Any
 
+from ladrc_bags import Bag, read_text_topic
 from ladrc_contract.codes import FollowState, Segment
 import numpy as np
 import yaml
-
-from ..bags.bag import Bag, read_text_topic
 
 STATUS = ('stamp_s', 'state', 'substate', 'target_gap_mm', 'cnc_segment', 'cnc_beam_on',
           'cnc_contour', 'cnc_commanded_feed_mm_s', 'cnc_actual_feed_mm_s',

@@ -15,6 +15,7 @@ import math
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from ladrc_bags import Bag, BagError, open_bag, read_first_text
 from ladrc_contract.codes import EventKind, FollowState
 from ladrc_contract.events import COMMAND_KIND
 from ladrc_contract.events import decode as decode_event
@@ -26,8 +27,6 @@ from ladrc_follow.control.params import (
 )
 import numpy as np
 import yaml
-
-from ..bags.bag import Bag, BagError, open_bag, read_first_text
 
 # ladrc_msgs/FollowEvent kinds -> follow command names (the contract's codec), and the sets
 KIND_NAMES = {**{int(k): name for name, k in COMMAND_KIND.items()},

@@ -15,13 +15,13 @@ from pathlib import Path
 import sys
 from typing import Any, Callable
 
+from ladrc_bags import Bag, BagError, count_lost, open_bag, read_text_topic
 from ladrc_contract.codes import FollowState, LimitFlag
 from ladrc_contract.run_log import RunLog, verdict
 from ladrc_contract.topics import SEQ_FIELD
 import numpy as np
 import yaml
 
-from ..bags.bag import Bag, BagError, count_lost, open_bag, read_text_topic
 from .envelope import Envelope
 from .outdir import building
 from .quantiles import Quantiles

@@ -246,7 +246,7 @@ def sweep_on(client: Any, base: ControllerParams, w0s: Sequence[float], kps: Seq
     the sets are not sent back (``point_params`` rebuilds the chosen one); the front is marked
     over all parts at the end, so it is the one :func:`sweep` marks.
     """
-    from ..fleet.engine import in_order
+    from .engine import in_order
 
     points = grid(base, w0s, kps, b0s, td_rs)
     if chunk is None:

@@ -1,1 +1,0 @@
-"""Bring-up: the sim, follow and recorder nodes as processes on an isolated DDS domain; demo."""

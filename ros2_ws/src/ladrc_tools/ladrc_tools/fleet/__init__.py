@@ -1,1 +1,0 @@
-"""Fleet tools: many bags of many machines, on a distributed engine (docs/fleet.md)."""
