@@ -18,14 +18,13 @@ driver needed it for and what to write in the device file. Plain Python, no bus,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, is_dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-import typing
 from typing import Any
 
 import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
-from ladrc_contract.schema import Section, field_problems, param
+from ladrc_contract.schema import LoadError, Section, load, param
 import yaml
 
 from . import mapping
@@ -152,50 +151,18 @@ def load_device(path: str | Path) -> DeviceFile:
         raise PlanError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
     if not isinstance(d, dict):
         raise PlanError(f'{path}: a device file is a mapping (node_id, dcf, objects, ...)')
-    errors: list[str] = []
-    dev = _build(DeviceFile(), d, '', errors)
-    if not errors:
-        errors = field_problems(dev)
-    if errors:
-        raise PlanError(f'{path}: {errors[0]}')
+    try:
+        dev = load(DeviceFile, d, skip=('path',), convert=_index_text)
+    except LoadError as exc:
+        raise PlanError(f'{path}: {exc}') from None
     return replace(dev, path=str(path.resolve()))
 
 
-def _build(base: Any, d: dict, prefix: str, errors: list[str]) -> Any:
-    hints = typing.get_type_hints(type(base))
-    changes = {}
-    for k, v in d.items():
-        key = f'{prefix}{k}'
-        if k not in hints or k == 'path':
-            known = ', '.join(h for h in hints if h != 'path')
-            errors.append(f"unknown key '{key}' (known: {known})")
-        elif is_dataclass(hints[k]):
-            if isinstance(v, dict):
-                changes[k] = _build(getattr(base, k), v, key + '.', errors)
-            else:
-                errors.append(f'{key} must be a mapping, got {v!r}')
-        elif k == 'sdo' and not prefix:
-            if not isinstance(v, list):
-                errors.append(f'sdo must be a list of {{index, sub_index, value}}, got {v!r}')
-            else:
-                changes[k] = tuple(v)
-        elif k in ('rpdo', 'tpdo') and not prefix:
-            if not isinstance(v, dict):
-                errors.append(f'{k} must be a mapping {{1: {{mapping: [...]}}}}, got {v!r}')
-            else:
-                changes[k] = dict(v)
-        else:
-            tp = hints[k]
-            if tp is float and isinstance(v, int) and not isinstance(v, bool):
-                v = float(v)
-            if tp is str and isinstance(v, int) and not isinstance(v, bool):
-                v = f'0x{v:04X}'  # an index written as a YAML number
-            changes[k] = v
-    for f in fields(base):
-        if f.name in changes and f.type in ('int', int) and isinstance(changes[f.name], float) \
-                and changes[f.name].is_integer():
-            changes[f.name] = int(changes[f.name])
-    return replace(base, **changes)
+def _index_text(tp: Any, v: Any) -> Any:
+    """Return an object written as a YAML number (0x6041) as its declared 'INDEX:SUB' text."""
+    if tp is str and isinstance(v, int) and not isinstance(v, bool):
+        return f'0x{v:04X}'
+    return v
 
 
 # ---- the plan ---------------------------------------------------------------------------

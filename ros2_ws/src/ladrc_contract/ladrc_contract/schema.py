@@ -378,7 +378,7 @@ def _load(cls: type, data: Any, where: str, base: Any, out: list[Problem], range
     for k in data:
         if k not in decl:
             out.append(Problem(_join(where, k), UNKNOWN_KEY,
-                               f'unknown key (allowed: {", ".join(decl)})', k,
+                               f'unknown key {k!r} (allowed: {", ".join(decl)})', k,
                                allowed=tuple(decl)))
     if base is None:
         for name, f in decl.items():

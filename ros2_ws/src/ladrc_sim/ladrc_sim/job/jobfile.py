@@ -22,17 +22,16 @@ and no part drops out); ``time_budget_s`` bounds its run (default 600 s for a G-
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import MISSING, dataclass, field, fields, replace
 import math
 from pathlib import Path
-import typing
 from typing import Any
 
-from ladrc_contract.schema import param, value_problems
+from ladrc_contract.schema import UNKNOWN_KEY, LoadError, load, param, value_problems
 from shapely.geometry import box
 import yaml
 
-from ..models.axis import ParamError, check_fields
+from ..models.axis import check_fields
 from ..models.sensor import SensorParams
 from ..models.sheet_xy import SurfaceParams
 from .cnc import CncSettings
@@ -106,21 +105,12 @@ class DrawingKeys:
         if not isinstance(layers, list) or any(
                 isinstance(x, (bool, dict, list)) or x is None or str(x) == '' for x in layers):
             raise JobError(f'{path}: layers: a list of DXF layer names, got {layers!r}')
-        values = {}
-        for key in ('join_tolerance_mm', 'open_contours'):
-            if key not in data:
-                continue
-            f = next(f for f in fields(cls) if f.name == key)
-            spec = f.metadata['spec']
-            kind = float if key == 'join_tolerance_mm' else str
-            v = data[key]
-            if kind is float and isinstance(v, int) and not isinstance(v, bool):
-                v = float(v)
-            bad = value_problems(key, kind, v, spec)
-            if bad:
-                raise JobError(f'{path}: {bad[0]}')
-            values[key] = v
-        return cls(dxf_units=units, layers=tuple(str(x) for x in layers), **values)
+        try:
+            return load(cls, {'dxf_units': units, 'layers': [str(x) for x in layers],
+                              **{k: data[k] for k in ('join_tolerance_mm', 'open_contours')
+                                 if k in data}})
+        except LoadError as exc:
+            raise JobError(f'{path}: {exc}') from None
 
 
 @dataclass(frozen=True)
@@ -204,59 +194,59 @@ class Job:
                        controller={**self.controller, **(controller or {})})
 
 
-def _section(cls: type, data: Any, where: str) -> Any:
-    """Build dataclass ``cls`` from a mapping: unknown keys, types and ranges are one line."""
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise JobError(f'{where}: must be a mapping')
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise JobError(f'{where}.{unknown[0]}: unknown key (allowed: {", ".join(sorted(names))})')
-    hints = typing.get_type_hints(cls)
-    kwargs = {}
-    for k, v in data.items():
-        tp = hints[k]
-        origin = typing.get_origin(tp)
-        if origin is tuple:
-            if not isinstance(v, list) or any(isinstance(x, bool) or not isinstance(
-                    x, (int, float)) for x in v):
-                raise JobError(f'{where}.{k}: expected a list of numbers, got {v!r}')
-            v = tuple(float(x) for x in v)
-        elif tp is float:
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise JobError(f'{where}.{k}: expected a number, got {v!r}')
-            v = float(v)
-        elif tp is int and (isinstance(v, bool) or not isinstance(v, int)):
-            raise JobError(f'{where}.{k}: expected an integer, got {v!r}')
-        elif tp is bool and not isinstance(v, bool):
-            raise JobError(f'{where}.{k}: expected true or false, got {v!r}')
-        kwargs[k] = v
-    try:
-        return cls(**kwargs)
-    except ParamError as exc:
-        raise JobError(f'{where}.{exc.key}: {exc.reason}') from None
-    except (TypeError, ValueError) as exc:
-        raise JobError(f'{where}: {exc}') from None
+@dataclass(frozen=True)
+class SheetKeys:
+    """The job file's ``sheet`` section."""
+
+    width_mm: float = param(MISSING, 'mm', 'sheet width (x)', ge=10.0, le=10000.0)
+    height_mm: float = param(MISSING, 'mm', 'sheet height (y)', ge=10.0, le=10000.0)
+    surface: SurfaceParams = field(default_factory=SurfaceParams)
 
 
-_TOP = ('name', 'description', 'dxf', 'sheet', 'cut', 'cnc', 'controller', 'sensor',
-        'tip_parts', 'tip_rise_mm', 'start_xy', 'start_height_mm', 'dxf_origin_mm', 'seed',
-        'limits', *(f.name for f in fields(DrawingKeys)), 'gcode', 'time_budget_s',
-        'expect_fault', 'contact')
+@dataclass(frozen=True)
+class CutKeys:
+    """The job file's ``cut`` section (how the drawing's contours are cut)."""
+
+    kerf_mm: float = param(0.2, 'mm', 'kerf width (the beam cuts half of it either side)',
+                           ge=0.0, le=5.0)
+    lead_in_mm: float = param(3.0, 'mm', 'lead-in length from the pierce to the contour')
+    micro_joint_mm: float = param(0.0, 'mm', 'micro-joint width left uncut (0: none)')
+    micro_joints_per_part: int = param(0, '1', 'micro-joints per part (0: none)')
+
+
+@dataclass(frozen=True, kw_only=True)
+class JobFile:
+    """The keys of a job file (module docstring), as the contract's loader reads them.
+
+    The drawing keys (:class:`DrawingKeys`) are top-level keys too, read apart.
+    """
+
+    name: str = param(MISSING, '', "the job's name")
+    description: str = param('', '', 'one line on what the job shows')
+    dxf: str | None = param(None, '', 'the part program (DXF), relative to the job file')
+    gcode: str | None = param(None, '', "the user's G-code program, instead of dxf")
+    sheet: SheetKeys
+    cut: CutKeys | None = None
+    cnc: CncSettings | None = None
+    controller: dict | None = None
+    sensor: SensorParams | None = None
+    tip_parts: tuple[int, ...] | None = None
+    tip_rise_mm: float = 3.0
+    start_xy: tuple[float, float] = param((0.0, 0.0), 'mm', 'where the nozzle starts [x, y]')
+    start_height_mm: float = 10.0
+    dxf_origin_mm: tuple[float, float] = param((0.0, 0.0), 'mm', "where the drawing's (0, 0) "
+                                               'lies on the sheet [x, y]')
+    seed: int = 1
+    limits: dict | None = None
+    time_budget_s: float | None = param(None, 's', "the job's time bound", ge=1.0, le=86400.0)
+    expect_fault: bool = False
+    contact: ContactInjection | None = None
+
+
+_DRAWING = tuple(f.name for f in fields(DrawingKeys))
+_TOP = (*(f.name for f in fields(JobFile)), *_DRAWING)
 GCODE_TIME_BUDGET_S = 600.0
 """A G-code job's time bound when its file gives no ``time_budget_s``."""
-
-
-def _xy(data: dict, key: str, path: Path) -> tuple[float, float]:
-    """Return ``data[key]`` as a point [x, y] in mm (default the origin); one line if not."""
-    v = data.get(key, [0.0, 0.0])
-    if not (isinstance(v, list) and len(v) == 2 and all(
-            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
-            for x in v)):
-        raise JobError(f'{path}: {key}: [x, y] in mm, got {v!r}')
-    return float(v[0]), float(v[1])
 
 
 def load_job(path: str | Path) -> Job:
@@ -270,77 +260,39 @@ def load_job(path: str | Path) -> Job:
         raise JobError(f'{path}: not YAML: {" ".join(str(exc).split())[:120]}') from None
     if not isinstance(data, dict):
         raise JobError(f'{path}: a job file is a mapping of keys')
-    unknown = sorted(set(data) - set(_TOP))
-    if unknown:
-        raise JobError(f'{path}: {unknown[0]}: unknown key (allowed: {", ".join(_TOP)})')
-    for req in ('name', 'sheet'):
-        if req not in data:
-            raise JobError(f'{path}: {req}: missing')
-    if ('dxf' in data) == ('gcode' in data):
+    try:
+        keys = load(JobFile, {k: v for k, v in data.items() if k not in _DRAWING})
+    except LoadError as exc:
+        if exc.kind == UNKNOWN_KEY and '.' not in exc.path:  # the drawing keys are allowed
+            raise JobError(f'{path}: {exc.path}: unknown key {exc.path!r} (allowed: '
+                           f'{", ".join(_TOP)})') from None
+        raise JobError(f'{path}: {exc}') from None
+    if (keys.dxf is None) == (keys.gcode is None):
         raise JobError(f'{path}: dxf or gcode: the program, one of them '
-                       + ('(both given)' if 'dxf' in data else '(neither given)'))
-    expect_fault = data.get('expect_fault', False)
-    if not isinstance(expect_fault, bool):
-        raise JobError(f'{path}: expect_fault: true or false, got {expect_fault!r}')
-    budget = data.get('time_budget_s')
-    if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, float))
-                               or not 1.0 <= budget <= 86400.0):
-        raise JobError(f'{path}: time_budget_s: a number of 1..86400 s, got {budget!r}')
-    sheet = data['sheet']
-    if not isinstance(sheet, dict):
-        raise JobError(f'{path}: sheet: must be a mapping')
-    w, h = sheet.get('width_mm'), sheet.get('height_mm')
-    for k, v in (('width_mm', w), ('height_mm', h)):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 10.0 <= v <= 10000.0:
-            raise JobError(f'{path}: sheet.{k}: a number of 10..10000 mm, got {v!r}')
-    extra = sorted(set(sheet) - {'width_mm', 'height_mm', 'surface'})
-    if extra:
-        raise JobError(f'{path}: sheet.{extra[0]}: unknown key')
-    cut = data.get('cut') or {}
-    if not isinstance(cut, dict):
-        raise JobError(f'{path}: cut: must be a mapping')
-    kerf = cut.get('kerf_mm', 0.2)
-    if isinstance(kerf, bool) or not isinstance(kerf, (int, float)) or not 0.0 <= kerf <= 5.0:
-        raise JobError(f'{path}: cut.kerf_mm: a number of 0..5 mm, got {kerf!r}')
-    extra = sorted(set(cut) - {'kerf_mm', 'lead_in_mm', 'micro_joint_mm',
-                               'micro_joints_per_part'})
-    if extra:
-        raise JobError(f'{path}: cut.{extra[0]}: unknown key')
-    controller = data.get('controller') or {}
-    if not isinstance(controller, dict):
-        raise JobError(f'{path}: controller: a mapping of parameter: value')
-    key = 'dxf' if 'dxf' in data else 'gcode'
-    source = path.parent / str(data[key])
+                       + ('(both given)' if keys.dxf is not None else '(neither given)'))
+    key = 'dxf' if keys.dxf is not None else 'gcode'
+    source = path.parent / (keys.dxf if keys.dxf is not None else keys.gcode)
     if not source.is_file():
         raise JobError(f'{path}: {key}: {source} does not exist')
     dxf, gcode = (source, None) if key == 'dxf' else (None, source)
-    tips = data.get('tip_parts') or []
-    if not isinstance(tips, list) or any(isinstance(x, bool) or not isinstance(x, int)
-                                         for x in tips):
-        raise JobError(f'{path}: tip_parts: a list of part indices')
-    start = _xy(data, 'start_xy', path)
-    origin = _xy(data, 'dxf_origin_mm', path)
     drawing = DrawingKeys.read(data, path)
-    sensor = _section(SensorParams, data.get('sensor'), f'{path}: sensor')
-    cnc = _section(CncSettings, data.get('cnc'), f'{path}: cnc')
+    sensor = keys.sensor or SensorParams()
+    cnc = keys.cnc or CncSettings()
     if cnc.small_contour_mm < 0.0:  # the default: the nozzle face (the field beyond it)
         cnc = replace(cnc, small_contour_mm=sensor.nozzle_diameter_mm)
-    return Job(path=path, name=str(data['name']), description=str(data.get('description', '')),
-               dxf=dxf, width_mm=float(w), height_mm=float(h),
-               surface=_section(SurfaceParams, sheet.get('surface'), f'{path}: sheet.surface'),
-               kerf_mm=float(kerf), lead_in_mm=float(cut.get('lead_in_mm', 3.0)),
-               micro_joint_mm=float(cut.get('micro_joint_mm', 0.0)),
-               micro_joints_per_part=int(cut.get('micro_joints_per_part', 0)),
-               cnc=cnc, controller=dict(controller), sensor=sensor,
-               tip_parts=tuple(tips), tip_rise_mm=float(data.get('tip_rise_mm', 3.0)),
-               start_xy=start, dxf_origin_mm=origin,
-               start_height_mm=float(data.get('start_height_mm', 10.0)),
-               seed=int(data.get('seed', 1)), limits=dict(data.get('limits') or {}),
-               drawing=drawing, gcode=gcode,
-               time_budget=float(budget) if budget is not None else None,
-               expect_fault=expect_fault,
-               contact=(_section(ContactInjection, data['contact'], f'{path}: contact')
-                        if data.get('contact') is not None else None))
+    cut = keys.cut or CutKeys()
+    return Job(path=path, name=keys.name, description=keys.description,
+               dxf=dxf, width_mm=keys.sheet.width_mm, height_mm=keys.sheet.height_mm,
+               surface=keys.sheet.surface, kerf_mm=cut.kerf_mm, lead_in_mm=cut.lead_in_mm,
+               micro_joint_mm=cut.micro_joint_mm,
+               micro_joints_per_part=cut.micro_joints_per_part,
+               cnc=cnc, controller=dict(keys.controller or {}), sensor=sensor,
+               tip_parts=keys.tip_parts or (), tip_rise_mm=keys.tip_rise_mm,
+               start_xy=keys.start_xy, dxf_origin_mm=keys.dxf_origin_mm,
+               start_height_mm=keys.start_height_mm, seed=keys.seed,
+               limits=dict(keys.limits or {}), drawing=drawing, gcode=gcode,
+               time_budget=keys.time_budget_s, expect_fault=keys.expect_fault,
+               contact=keys.contact)
 
 
 JOBS_DIR = Path(__file__).resolve().parent / 'jobs'
