@@ -1,19 +1,18 @@
-"""The package split holds: which layer may import what, and package.xml declares every import.
+"""The package split holds: which package may import which, and package.xml declares every import.
 
 Read from the source files (ast), nothing is imported:
 
-* ``control/``, ``models/``, ``headless/``, ``bags/``, ``offline/`` are pure: no rclpy;
-* ``ladrc_sim`` never imports ``ladrc_follow`` or ``ladrc_tools`` (the simulator does not know
-  the controller);
-* ``ladrc_follow`` (the controller) imports none of ``ladrc_sim``, ``ladrc_tools``, rosbags,
-  matplotlib, scipy;
-* ``ladrc_cia402`` (the CiA 402 drive, machine side) imports neither ``ladrc_sim`` nor
-  ``ladrc_tools``; its CANopen layer (``ds402``, ``emcy``, ``units``, ``mapping``) no rclpy;
-* ``ladrc_linuxcnc`` (the LinuxCNC bridge, machine side) imports neither ``ladrc_sim`` nor
-  ``ladrc_tools`` (the post-processor, ``ladrc_tools/cam``, is the tools'); its files that run
-  on the system Python inside LinuxCNC (``hal_component``, ``display``, ``z_filter``,
-  ``gcode_path``, and ``protocol`` they share) import only the standard library, LinuxCNC's own
-  modules and ``protocol``: no rclpy, no numpy, nothing of the contract; LinuxCNC's modules
+* the arrows between the project's packages point down only (:data:`ALLOWED`, the picture in
+  docs/architecture.md, "Packages"): a package imports only the packages its row names (and
+  ``ladrc_msgs``, the interfaces every package may use); the table has no cycle; a package.xml
+  names no package above it;
+* ``control/``, ``models/``, ``headless/``, ``offline/``, ... are pure: no rclpy; so are
+  ``ladrc_bags`` (but its recorder node) and ``ladrc_fleet``;
+* ``ladrc_follow`` (the controller) imports none of rosbags, matplotlib, scipy;
+* ``ladrc_cia402``'s CANopen layer (``ds402``, ``emcy``, ``units``, ``mapping``) no rclpy;
+* ``ladrc_linuxcnc``'s files that run on the system Python inside LinuxCNC (``hal_component``,
+  ``display``, ``z_filter``, ``gcode_path``, and ``protocol`` they share) import only the
+  standard library, LinuxCNC's own modules and ``protocol``: no rclpy, no numpy, nothing of the contract; LinuxCNC's modules
   (``hal``, ``linuxcnc``, ``gcode``: the Debian package linuxcnc-uspace, no rosdep key) only
   there;
 * each package's package.xml has a ``<depend>`` or ``<exec_depend>`` for every third-party
@@ -33,8 +32,29 @@ ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / 'ros2_ws' / 'src'
 PACKAGES = ('ladrc_contract', 'ladrc_cia402', 'ladrc_linuxcnc', 'ladrc_follow', 'ladrc_sim',
             'ladrc_bags', 'ladrc_tools', 'ladrc_bringup', 'ladrc_fleet')
-PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'bags', 'offline', 'commissioning',
-                'fleet', 'cia402', 'cam')
+INTERFACES = 'ladrc_msgs'  # generated message classes: any package may import them
+# who may import whom: each package's row names the project's packages it may import. The
+# arrows point down: machine side (contract, drive, LinuxCNC, controller), then the simulator,
+# the bags, the tools, and on top the bring-up and the fleet tools. A package above another
+# adds to it without being imported (ladrc's subcommands: the entry-point group ladrc.commands).
+ALLOWED: dict[str, frozenset[str]] = {
+    'ladrc_contract': frozenset(),
+    'ladrc_cia402': frozenset({'ladrc_contract'}),
+    'ladrc_linuxcnc': frozenset({'ladrc_contract'}),
+    'ladrc_follow': frozenset({'ladrc_contract'}),
+    'ladrc_sim': frozenset({'ladrc_contract', 'ladrc_cia402'}),  # the emulated CiA 402 drive
+    'ladrc_bags': frozenset({'ladrc_contract', 'ladrc_sim'}),  # a headless run as a bag
+    'ladrc_tools': frozenset({'ladrc_contract', 'ladrc_cia402', 'ladrc_follow', 'ladrc_sim',
+                              'ladrc_bags'}),
+    'ladrc_fleet': frozenset({'ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_bags',
+                              'ladrc_tools'}),
+    'ladrc_bringup': frozenset({'ladrc_contract', 'ladrc_linuxcnc', 'ladrc_follow', 'ladrc_sim',
+                                'ladrc_bags', 'ladrc_tools'}),
+}
+PURE_FOLDERS = ('control', 'models', 'headless', 'job', 'offline', 'commissioning', 'cia402',
+                'cam')
+PURE_PACKAGES = {'ladrc_bags': {'recorder_node.py'}, 'ladrc_fleet': set()}
+"""Packages with no rclpy, but for the files named (their ROS side)."""
 LINUXCNC_SIDE = ('hal_component.py', 'display.py', 'z_filter.py', 'gcode_path.py',
                  'protocol.py')  # ladrc_linuxcnc's files on the system Python, inside LinuxCNC
 LINUXCNC_MODULES = {'hal', 'linuxcnc', 'gcode'}  # LinuxCNC's own (system Python only)
@@ -148,14 +168,95 @@ def test_pure_folders_do_not_import_rclpy():
     assert not offenders, f'pure layers import rclpy: {offenders}'
 
 
-def test_sim_does_not_know_the_controller_or_the_tools():
-    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_follow', 'ladrc_tools'})
-                 for p in _py_files('ladrc_sim')}
-    assert not {k: v for k, v in offenders.items() if v}
+@pytest.mark.parametrize('package', sorted(PURE_PACKAGES))
+def test_pure_packages_do_not_import_rclpy(package):
+    files = [p for p in _py_files(package) if p.relative_to(SRC / package).parts[0] == package]
+    ros_side = [p for p in files if p.name in PURE_PACKAGES[package]]
+    assert len(ros_side) == len(PURE_PACKAGES[package])  # the exceptions exist
+    offenders = [_rel(p) for p in files if p not in ros_side and 'rclpy' in _imports(p)]
+    assert not offenders, f'{package} imports rclpy: {offenders}'
 
 
-@pytest.mark.parametrize('module', ['ladrc_sim', 'ladrc_tools', 'rosbags', 'matplotlib',
-                                    'scipy'])
+# ---- the arrows between the packages -------------------------------------------------------
+def cycle_in(graph: dict[str, frozenset[str]]) -> list[str]:
+    """Return one cycle of ``graph`` (name -> names it imports) as a path, [] when it has none."""
+    done: set[str] = set()
+    path: list[str] = []
+
+    def visit(node: str) -> list[str]:
+        if node in path:
+            return path[path.index(node):] + [node]
+        if node in done:
+            return []
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            found = visit(nxt)
+            if found:
+                return found
+        path.pop()
+        done.add(node)
+        return []
+
+    for start in sorted(graph):
+        found = visit(start)
+        if found:
+            return found
+    return []
+
+
+def below(graph: dict[str, frozenset[str]], package: str) -> set[str]:
+    """Return every package ``package`` reaches by the arrows of ``graph`` (not itself)."""
+    seen: set[str] = set()
+    todo = list(graph.get(package, ()))
+    while todo:
+        p = todo.pop()
+        if p not in seen:
+            seen.add(p)
+            todo.extend(graph.get(p, ()))
+    return seen
+
+
+def upward_imports(package: str, modules: set[str],
+                   graph: dict[str, frozenset[str]] = ALLOWED) -> set[str]:
+    """Return the project's packages in ``modules`` that ``package`` may not import."""
+    ours = {m for m in modules if m.startswith('ladrc_')}
+    return ours - graph[package] - {package, INTERFACES}
+
+
+def test_the_arrows_point_down_only():
+    assert set(ALLOWED) == set(PACKAGES)
+    assert all(set(v) <= set(PACKAGES) for v in ALLOWED.values())
+    assert cycle_in(ALLOWED) == []
+
+
+def test_a_cycle_or_an_upward_import_is_found():
+    assert cycle_in({'a': frozenset({'b'}), 'b': frozenset({'c'}), 'c': frozenset({'a'})}) == [
+        'a', 'b', 'c', 'a']
+    assert cycle_in({'a': frozenset({'b'}), 'b': frozenset(), 'c': frozenset({'a', 'b'})}) == []
+    assert below(ALLOWED, 'ladrc_bringup') >= {'ladrc_tools', 'ladrc_bags', 'ladrc_cia402'}
+    assert upward_imports('ladrc_tools', {'ladrc_fleet', 'ladrc_bags', 'ladrc_msgs', 'numpy'}
+                          ) == {'ladrc_fleet'}
+    assert upward_imports('ladrc_bags', {'ladrc_tools', 'ladrc_bringup'}) == {
+        'ladrc_tools', 'ladrc_bringup'}
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_a_package_imports_only_the_packages_below_it(package):
+    offenders = {_rel(p): sorted(upward_imports(package, _imports(p)))
+                 for p in _py_files(package) if p.relative_to(SRC / package).parts[0] != 'test'}
+    assert not {k: v for k, v in offenders.items() if v}, f'{package} may import only ' \
+        f'{sorted(ALLOWED[package])}: {offenders}'
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_package_xml_names_no_package_above(package):
+    """Its ladrc_* dependencies are packages its arrows reach: never one above (a cycle)."""
+    xml = (SRC / package / 'package.xml').read_text(encoding='utf-8')
+    ours = {d for d in run_depends(xml, TEST_DEPEND_TAGS) if d.startswith('ladrc_')}
+    assert not ours - below(ALLOWED, package) - {INTERFACES}
+
+
+@pytest.mark.parametrize('module', ['rosbags', 'matplotlib', 'scipy'])
 def test_controller_package_stays_lean(module):
     offenders = [_rel(p) for p in _py_files('ladrc_follow') if module in _imports(p)]
     assert not offenders, f'ladrc_follow imports {module}: {offenders}'
@@ -225,18 +326,8 @@ def test_unknown_third_party_module_is_reported():
         'pandas: no package.xml key known for this module (add it to DEPEND_KEY)']
 
 
-def test_the_contract_package_imports_no_node_package():
-    """ladrc_contract is what the drive, the controller and the tools share: it knows none."""
-    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_follow', 'ladrc_sim', 'ladrc_tools'})
-                 for p in _py_files('ladrc_contract')}
-    assert not {k: v for k, v in offenders.items() if v}
-
-
-def test_the_cia402_package_is_machine_side():
-    """ladrc_cia402 is what a real drive runs on: it never imports the simulator or the tools."""
-    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_sim', 'ladrc_tools'})
-                 for p in _py_files('ladrc_cia402')}
-    assert not {k: v for k, v in offenders.items() if v}
+def test_the_cia402_canopen_layer_is_plain():
+    """ladrc_cia402's CANopen layer (what a real drive's master runs) imports no rclpy."""
     pure = [p for p in _py_files('ladrc_cia402') if p.name in CIA402_PURE]
     assert len(pure) == len(CIA402_PURE)
     assert not [_rel(p) for p in pure if 'rclpy' in _imports(p)]
@@ -251,15 +342,13 @@ def test_machine_side_packages_do_not_import_the_live_view():
 
 
 def test_the_linuxcnc_package_is_machine_side():
-    """ladrc_linuxcnc runs beside LinuxCNC: never the simulator or the tools (module docstring).
+    """ladrc_linuxcnc runs beside LinuxCNC (its imports: :data:`ALLOWED`).
 
     Its LinuxCNC side runs on the system Python (whatever Python the venv was made from):
     standard library, LinuxCNC's modules and the shared protocol only; LinuxCNC's modules
     nowhere else in the project.
     """
     files = _py_files('ladrc_linuxcnc')
-    offenders = {_rel(p): sorted(_imports(p) & {'ladrc_sim', 'ladrc_tools'}) for p in files}
-    assert not {k: v for k, v in offenders.items() if v}
     side = [p for p in files if p.name in LINUXCNC_SIDE and p.parent.name == 'ladrc_linuxcnc']
     assert len(side) == len(LINUXCNC_SIDE)
     for p in side:
