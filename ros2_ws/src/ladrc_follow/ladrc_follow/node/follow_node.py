@@ -16,8 +16,8 @@ its own deadline when one is late; ``lockstep``: one tick per step of the sim no
 QoS: :mod:`ladrc_contract.qos`. The inputs: :mod:`.samples`; the parameters: :mod:`.node_params`.
 
 Safety: zero velocity with ``enable = false`` on stop, fault, shutdown, SIGINT and SIGTERM
-(the node installs its own signal handlers so it can still publish the zero command before the
-ROS context goes down).
+(the entry, :func:`ladrc_contract.node_entry.run_node`, keeps the ROS context up until the zero
+command is out).
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ import math
 import os
 import queue
 import secrets
-import signal
 import sys
 import threading
 import time
@@ -42,8 +41,8 @@ from ladrc_contract.cdr import CdrPacker
 from ladrc_contract.codes import EventKind, FaultCode
 from ladrc_contract.events import EventFields
 from ladrc_contract.events import encode as encode_event
-from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.run_log import RunLog, verdict
@@ -72,12 +71,10 @@ from ladrc_msgs.msg import (
 from rcl_interfaces.msg import (
     SetParametersResult,
 )
-import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from ..analysis.gate import check_gate
@@ -552,84 +549,67 @@ class FollowNode(LoopNode):
         self.pub_diag.publish(arr)
 
 
+def _make_node() -> FollowNode:
+    try:
+        return FollowNode()
+    except ParameterError as exc:
+        raise StartError(f'invalid parameters: {" | ".join(exc.reasons)}') from None
+
+
+def _run(node: FollowNode, run: NodeRun) -> int:
+    """Start the gate worker, the real-time settings and the housekeeping; run the loop."""
+    np_ = node.node_params
+    run.defer(node.gate.close)
+    node.gate.start()  # its worker process runs at the normal scheduler
+    # no SCHED_FIFO in lock step: timing cannot change its result, and two FIFO processes
+    # answering each other as fast as they can starve every other process (the recorder)
+    applied, warnings = apply_realtime(0 if node.lockstep else np_.thread_priority,
+                                       [np_.cpu] if np_.cpu >= 0 else [], np_.lock_memory)
+    for text in warnings:
+        node.get_logger().warning(text)
+    node.realtime = ', '.join(applied) or 'none'
+    # after apply_realtime; one below a real-time loop (ladrc_contract.service_thread)
+    fifo = any(a.startswith('SCHED_FIFO') for a in applied)
+    run.defer(node.housekeeping.close)
+    node.housekeeping.start(np_.thread_priority - 1 if fifo else 0)
+    node.get_logger().info(f'following loop started ({node.loop_mode}, '
+                           f'{1.0 / node.h_s:.0f} Hz)')
+    # Everything alive now (node, controller, generated code) leaves the collector's
+    # reach: a full collection must not stall the 2 kHz loop.
+    gc.collect()
+    gc.freeze()
+    try:
+        run_loop(node, run)
+    except ExternalShutdownException:
+        run.request_stop('external shutdown')
+    run.defer(node.write_run_summary)  # after the zero command, before the threads go
+    return 0
+
+
+def _zero(node: FollowNode, reason: str) -> None:
+    """Zero velocity, drive enable off, the last one releasing the commander; lock step: acked."""
+    for i in range(3):
+        try:
+            node.publish_zero(reason, log=i == 0, release=i == 2)
+        except Exception:  # noqa: BLE001 - the context may already be gone
+            return
+    if node.lockstep:
+        # the recorder gets the last status and the zero commands before the reliable
+        # writers go (ladrc_contract.qos.wait_acknowledged); at most 2 s
+        try:
+            wait_acknowledged((node.pub_cmd, node.pub_status),
+                              min(2.0, node.node_params.lockstep_timeout_s))
+        except Exception:  # noqa: BLE001, S110 - the context may already be gone
+            pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``ros2 run ladrc_follow follow_node --ros-args --params-file FILE``.
 
     A bad parameter file or value ends the start with one line on stderr and exit code 2.
     """
-    problem = params_file_problem(sys.argv if argv is None else argv)
-    if problem:
-        print(f'follow_node: {problem}', file=sys.stderr)
-        return 2
-    try:
-        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    except Exception as exc:  # noqa: BLE001 - e.g. rcl cannot parse the parameter file
-        text = ' '.join(str(exc).split())
-        print(f'follow_node: cannot start: {type(exc).__name__}: {text}', file=sys.stderr)
-        return 2
-    running = [True]
-    stop_reason = ['shutdown']
-
-    def _stop(signum, _frame):
-        running[0] = False
-        stop_reason[0] = signal.Signals(signum).name
-
-    signal.signal(signal.SIGINT, _stop)
-    signal.signal(signal.SIGTERM, _stop)
-    node = None
-    try:
-        try:
-            node = FollowNode()
-        except ParameterError as exc:
-            print(f'follow_node: invalid parameters: {" | ".join(exc.reasons)}',
-                  file=sys.stderr)
-            return 2
-        np_ = node.node_params
-        node.gate.start()  # its worker process runs at the normal scheduler
-        # no SCHED_FIFO in lock step: timing cannot change its result, and two FIFO processes
-        # answering each other as fast as they can starve every other process (the recorder)
-        applied, warnings = apply_realtime(0 if node.lockstep else np_.thread_priority,
-                                           [np_.cpu] if np_.cpu >= 0 else [], np_.lock_memory)
-        for text in warnings:
-            node.get_logger().warning(text)
-        node.realtime = ', '.join(applied) or 'none'
-        # after apply_realtime; one below a real-time loop (ladrc_contract.service_thread)
-        fifo = any(a.startswith('SCHED_FIFO') for a in applied)
-        node.housekeeping.start(np_.thread_priority - 1 if fifo else 0)
-        node.get_logger().info(f'following loop started ({node.loop_mode}, '
-                               f'{1.0 / node.h_s:.0f} Hz)')
-        # Everything alive now (node, controller, generated code) leaves the collector's
-        # reach: a full collection must not stall the 2 kHz loop.
-        gc.collect()
-        gc.freeze()
-        try:
-            run_loop(node, running)
-        except ExternalShutdownException:
-            stop_reason[0] = 'external shutdown'
-        finally:
-            # Zero velocity before anything goes down, however the loop ended.
-            for i in range(3):
-                try:
-                    node.publish_zero(stop_reason[0], log=i == 0, release=i == 2)
-                except Exception:  # noqa: BLE001 - the context may already be gone
-                    break
-            if node.lockstep:
-                # the recorder gets the last status and the zero commands before the reliable
-                # writers go (ladrc_contract.qos.wait_acknowledged); at most 2 s
-                try:
-                    wait_acknowledged((node.pub_cmd, node.pub_status),
-                                      min(2.0, node.node_params.lockstep_timeout_s))
-                except Exception:  # noqa: BLE001 - the context may already be gone
-                    pass
-        node.write_run_summary()
-        return 0
-    finally:
-        if node is not None:
-            node.housekeeping.close()
-            node.gate.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+    return run_node('follow_node', _make_node, _run, args=argv,
+                    check_args=params_file_problem, zero=_zero)
 
 
 if __name__ == '__main__':

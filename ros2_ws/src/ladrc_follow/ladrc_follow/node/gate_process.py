@@ -22,6 +22,7 @@ import multiprocessing
 import os
 import signal
 
+from ladrc_contract.node_entry import ignore_stop_signals
 from ladrc_contract.realtime import schedule_this_thread
 
 from ..analysis.gate import check_gate
@@ -46,7 +47,7 @@ def _worker_setup() -> None:
     The worker shares the node's process group, so a terminal's or launch's SIGINT reaches it
     too; the node ends it (:meth:`GateProcess.close`).
     """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ignore_stop_signals((signal.SIGINT,))
     schedule_this_thread(0)
 
 

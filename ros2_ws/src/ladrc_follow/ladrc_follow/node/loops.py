@@ -29,6 +29,7 @@ from typing import Any, Protocol
 
 from ladrc_contract.codes import FaultCode
 from ladrc_contract.loop_io import SampleWait
+from ladrc_contract.node_entry import NodeRun
 
 from ..control.follow import FollowController, FollowState
 from .samples import SampleInputs
@@ -57,10 +58,10 @@ class FollowNode(Protocol):
 LOCKSTEP_POLL_NS = 50_000_000  # lock step: how long one wait for a step lasts (the hang check)
 
 
-def run_loop(node: FollowNode, running: list[bool]) -> None:
-    """Drive the node's ticks until ``running[0]`` turns false."""
+def run_loop(node: FollowNode, run: NodeRun) -> None:
+    """Drive the node's ticks until a stop is requested (``run.stop_requested``)."""
     loops = {'deadline': run_deadline, 'sync': run_sync, 'lockstep': run_lockstep}
-    loops[node.loop_mode](node, running)
+    loops[node.loop_mode](node, run)
 
 
 def _guarded(node: FollowNode, tick) -> None:
@@ -70,12 +71,12 @@ def _guarded(node: FollowNode, tick) -> None:
         node.on_tick_exception(exc)
 
 
-def run_deadline(node: FollowNode, running: list[bool]) -> None:
+def run_deadline(node: FollowNode, run: NodeRun) -> None:
     """Sleep to the deadline, take the samples that arrived, tick; skip ahead when late."""
     period = node.period_ns
     mono = time.monotonic_ns
     next_ns = mono() + period
-    while running[0]:
+    while not run.stop_requested:
         remaining = next_ns - mono()
         if remaining > 0:
             time.sleep(remaining * 1e-9)
@@ -87,7 +88,7 @@ def run_deadline(node: FollowNode, running: list[bool]) -> None:
             next_ns = mono() + period
 
 
-def run_sync(node: FollowNode, running: list[bool]) -> None:
+def run_sync(node: FollowNode, run: NodeRun) -> None:
     """Tick when both inputs have a new sample; at the latest one period + sync_wait_s on."""
     limit = node.period_ns + node.sync_wait_ns
     mono = time.monotonic_ns
@@ -96,7 +97,7 @@ def run_sync(node: FollowNode, running: list[bool]) -> None:
     wait_fb = SampleWait(node.context, (s.fb_reader,))
     last = mono()
     feedback_last = True  # which input completed the previous pair
-    while running[0]:
+    while not run.stop_requested:
         had_gap, had_fb = s.new_gap, s.new_feedback
         _guarded(node, s.take)
         if s.new_gap and s.new_feedback:
@@ -112,7 +113,7 @@ def run_sync(node: FollowNode, running: list[bool]) -> None:
         _guarded(node, node.tick_sync)
 
 
-def run_lockstep(node: FollowNode, running: list[bool]) -> None:
+def run_lockstep(node: FollowNode, run: NodeRun) -> None:
     """Tick once per ``sim/lockstep`` step, when its samples are here.
 
     The wall clock only guards the sim: no step for ``lockstep_timeout_s`` after the first is
@@ -122,7 +123,7 @@ def run_lockstep(node: FollowNode, running: list[bool]) -> None:
     s = node.samples
     wait_step = SampleWait(node.context, (s.step_reader,))
     wait_samples = SampleWait(node.context, (s.gap_reader, s.fb_reader, s.cnc_reader))
-    while running[0]:
+    while not run.stop_requested:
         _guarded(node, s.take)
         if node.step_ready():
             _guarded(node, node.tick_step)
