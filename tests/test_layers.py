@@ -3,7 +3,7 @@
 Read from the source files (ast), nothing is imported:
 
 * the arrows between the project's packages point down only (:data:`ALLOWED`, the picture in
-  docs/architecture.md, "Packages"): a package imports only the packages its row names (and
+  docs/architecture.md, "Layers"): a package imports only the packages its row names (and
   ``ladrc_msgs``, the interfaces every package may use); the table has no cycle; a package.xml
   names no package above it;
 * ``control/``, ``models/``, ``headless/``, ``offline/``, ... are pure: no rclpy; so are

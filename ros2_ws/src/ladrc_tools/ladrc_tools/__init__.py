@@ -4,5 +4,5 @@
 calibration tables, the conformance rules), ``cam/`` (the LinuxCNC post-processor) never import
 rclpy; ``node/`` (the live view) is the ROS side. ``cli.py`` is the ``ladrc`` command. Bags are
 ladrc_bags'; the bring-up and the runs that start node processes are ladrc_bringup's; the fleet
-tools are ladrc_fleet's (docs/architecture.md, "Packages").
+tools are ladrc_fleet's (docs/architecture.md, "Layers").
 """
