@@ -73,6 +73,20 @@ def _span(values: list, nd: int = 3) -> str:
     return lo if lo == hi else f'{lo}–{hi}'
 
 
+def _grouped(rows: list[dict], key: str, item: Callable[[dict], str]) -> str:
+    """Render rows grouped by ``row[key]`` in first-seen order: ``group: item, item; ...``."""
+    groups: dict[str, list[str]] = {}
+    for x in rows:
+        groups.setdefault(str(x[key]), []).append(item(x))
+    return '; '.join(f'{g}: {", ".join(items)}' for g, items in groups.items())
+
+
+def _short_setting(setting: str) -> str:
+    """Shorten a nonlinear-observer setting's name (``fal on the disturbance, δ 10 µm`` ...)."""
+    return (setting.replace(' (shipped)', '').replace('fal on the disturbance, δ ', 'fal δ')
+            .replace('fal on all (NESO), δ ', 'NESO δ').replace(', ', ' '))
+
+
 def _state(n: Any) -> str:
     """Return the follow state's name (``FollowStatus.STATE_*``), the number if unknown."""
     try:
@@ -276,35 +290,37 @@ FIGURES: tuple[Figure, ...] = (
            lambda r: f'5 Hz sine on the target: TD {_f(r["sine5_td_ratio"])} (notes 0.72); '
                      f'thin sheet: LADRC {_f(r["thin_sheet_ladrc_range_mm"])} mm range vs PID '
                      f'{_f(r["thin_sheet_pid_range_mm"])} mm', quick=True, readme=True),
-    Figure('seed-sine-steps', "the notes' 5 Hz target sine and steps run by the LADRC: TD and "
-           'gap ratio; command chatter above 20 Hz, travel', 'seed_experiments', (),
-           lambda r: '; '.join(
-               [f'sine, {x["observer"]}: TD {_f(x["td_ratio"])}, gap {_f(x["gap_ratio"])} '
-                f'({_f(x["gap_phase_deg"])}°)' for x in r['rows']
-                if x['experiment'] == 'sine on the target']
-               + [f'{x["step"]}, {x["observer"]}'
-                  f'{", re-interpolated" if x["reinterpolate"] else ""}: chatter '
-                  f'{_f(x["chatter_mm_s"])} mm/s, travel {_f(x["travel_mm"])} mm'
-                  for x in r['rows'] if x['experiment'] == 'step'])),
+    Figure('seed-sine-steps', "the notes' 5 Hz target sine run by the LADRC: TD and gap ratio "
+           "(gap phase); the notes' steps: command chatter above 20 Hz in mm/s (re-interpolated "
+           'in brackets), nozzle travel', 'seed_experiments', (),
+           lambda r: 'sine: ' + ', '.join(
+               f'{x["observer"]} {_f(x["td_ratio"])} / {_f(x["gap_ratio"])} '
+               f'({_f(x["gap_phase_deg"])}°)' for x in r['rows']
+               if x['experiment'] == 'sine on the target')
+           + '; ' + _grouped(
+               [x for x in r['rows'] if x['experiment'] == 'step' and not x['reinterpolate']],
+               'step', lambda x: f'{x["observer"]} {_f(x["chatter_mm_s"])}'
+               + ''.join(f' ({_f(y["chatter_mm_s"])})' for y in r['rows']
+                         if y['experiment'] == 'step' and y['reinterpolate']
+                         and (y['step'], y['observer']) == (x['step'], x['observer']))
+               + f', travel {_f(x["travel_mm"])} mm')),
     Figure('seed-thin-sheet', "the notes' thin sheet: deviation (range) per setting",
            'seed_experiments', (),
            lambda r: '; '.join(
                f'{x["setting"]}: {x["deviation_min_mm"]:+.2f}…{x["deviation_max_mm"]:+.2f} mm '
                f'({_f(x["range_mm"])})' for x in r['rows'] if x['experiment'] == 'thin sheet')),
-    Figure('seed-fal', 'nonlinear observer (fal) vs linear: error RMS, chatter',
-           'seed_experiments', (),
-           lambda r: '; '.join(
-               f'{x["scenario"]}, {x["setting"]}: ' + ', '.join(
-                   f'{what} {_f(x[k])}{unit}' for k, what, unit in (
-                       ('error_rms_mm', 'RMS', ' mm'), ('chatter_mm_s', 'chatter', ' mm/s'),
-                       ('gap_ratio', 'gap ratio', '')) if k in x)
-               for x in r['rows'] if x['experiment'] == 'nonlinear observer')),
-    Figure('seed-kalman', 'Kalman filter in the loop (plain, gated): error RMS / max, chatter',
-           'seed_experiments', (),
-           lambda r: '; '.join(
-               f'{x["scenario"]}, {x["setting"]}: RMS {_f(x["error_rms_mm"])} mm, max '
-               f'{_f(x["error_max_mm"])} mm, chatter {_f(x["chatter_mm_s"])} mm/s'
-               for x in r['rows'] if x['experiment'] == 'kalman')),
+    Figure('seed-fal', 'nonlinear observer (fal) vs linear, per scenario: error RMS mm / chatter '
+           'mm/s (the sine on the target: RMS / gap ratio)', 'seed_experiments', (),
+           lambda r: _grouped(
+               [x for x in r['rows'] if x['experiment'] == 'nonlinear observer'], 'scenario',
+               lambda x: f'{_short_setting(x["setting"])} ' + ' / '.join(
+                   _f(x[k]) for k in ('error_rms_mm', 'chatter_mm_s', 'gap_ratio') if k in x))),
+    Figure('seed-kalman', 'Kalman filter in the loop (plain, gated), per scenario: error RMS / '
+           'max mm, chatter mm/s', 'seed_experiments', (),
+           lambda r: _grouped(
+               [x for x in r['rows'] if x['experiment'] == 'kalman'], 'scenario',
+               lambda x: f'{x["setting"]} {_f(x["error_rms_mm"])} / {_f(x["error_max_mm"])}, '
+                         f'{_f(x["chatter_mm_s"])}')),
     Figure('sweep-speed', 'batch closed loop, 1000 parameter sets × the batchable library',
            'sweep_speed', (),
            lambda r: f'{_f(r["wall_s"])} s wall, {_f(r["aggregate_realtime_x"])}× real time '
