@@ -36,7 +36,7 @@ import typing
 from typing import Any, Callable, Iterator
 
 __all__ = ['Spec', 'Entry', 'param', 'entries', 'field_problems', 'value_problems',
-           'first_problem', 'markdown_table', 'Section', 'load', 'coerce', 'LoadError',
+           'first_problem', 'markdown_table', 'Section', 'load', 'coerce', 'as_mapping', 'LoadError',
            'Problem', 'type_name', 'UNKNOWN_KEY', 'MISSING_KEY', 'NOT_MAPPING', 'WRONG_TYPE',
            'OUT_OF_RANGE', 'INVALID']
 
@@ -364,6 +364,14 @@ def coerce(value: Any, tp: Any, path: str) -> Any:
     if out:
         raise LoadError(out)
     return v
+
+
+def as_mapping(data: Any, path: str) -> dict:
+    """Return ``data`` if it is a mapping of string keys, else raise :class:`LoadError`."""
+    out: list[Problem] = []
+    if not _mapping(data, path, out):
+        raise LoadError(out)
+    return data
 
 
 def _load(cls: type, data: Any, where: str, base: Any, out: list[Problem], ranges: bool,

@@ -26,14 +26,25 @@ key (``sheet.profiles[1].freq_hz``) or the YAML line, and what is wrong.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 import importlib.resources
 import math
 from pathlib import Path
-import types
-import typing
 from typing import Any, Mapping
 
+from ladrc_contract.schema import (
+    INVALID,
+    MISSING_KEY,
+    OUT_OF_RANGE,
+    UNKNOWN_KEY,
+    WRONG_TYPE,
+    LoadError,
+    Problem,
+    as_mapping,
+    coerce,
+    load,
+    type_name,
+)
 import yaml
 
 from ..models.axis import AxisParams, ParamError
@@ -60,8 +71,8 @@ COMMANDS: dict[str, dict[str, tuple]] = {
                     'freq_end_hz': (float, 0.0, 0.0, 100.0),
                     'duration_s': (float, 0.0, 0.0, 600.0)},
     # the CNC interface (docs/interfaces.md, "CNC interface"); the controller checks the rest
-    'pierce': {'heights_mm': (tuple, REQUIRED, None, None),
-               'dwell_s': (tuple, REQUIRED, None, None),
+    'pierce': {'heights_mm': (tuple[float, ...], REQUIRED, None, None),
+               'dwell_s': (tuple[float, ...], REQUIRED, None, None),
                'cut_gap_mm': (float, REQUIRED, 0.0, 20.0), 'thc_delay_s': (float, 0.0, 0.0, 60.0),
                'locked': (bool, False, None, None)},
     'lift': {'mode': (int, 0, None, None), 'value_mm': (float, REQUIRED, 0.0, 500.0),
@@ -138,123 +149,58 @@ _TOP_KEYS = ('name', 'description', 'duration_s', 'seed', 'initial_gap_mm',
              'expect_fault')
 
 
-class _Fail(Exception):
-    def __init__(self, key: str, message: str):
-        super().__init__(message)
-        self.key = key
-        self.message = message
-
-
-def _type_name(v: Any) -> str:
-    if v is None:
-        return 'null'
-    return {bool: 'a boolean', int: 'an integer', float: 'a number', str: 'a string',
-            list: 'a list', dict: 'a mapping'}.get(type(v), type(v).__name__)
-
-
-def _coerce(value: Any, typ: Any, key: str) -> Any:
-    """Check ``value`` against a simple annotation (float, int, bool, str, tuple, X | None)."""
-    args = typing.get_args(typ)
-    if typing.get_origin(typ) in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        typ = next(a for a in args if a is not type(None))
-    if typ is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise _Fail(key, f'expected a number, got {_type_name(value)} ({value!r})')
-        return float(value)
-    if typ is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise _Fail(key, f'expected an integer, got {_type_name(value)} ({value!r})')
-        return value
-    if typ is bool:
-        if not isinstance(value, bool):
-            raise _Fail(key, f'expected true or false, got {_type_name(value)} ({value!r})')
-        return value
-    if typ is str:
-        if not isinstance(value, str):
-            raise _Fail(key, f'expected a string, got {_type_name(value)} ({value!r})')
-        return value
-    if typ is tuple:  # a list of numbers (a pierce's stages)
-        if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(
-                v, (int, float)) for v in value):
-            raise _Fail(key, f'expected a list of numbers, got {_type_name(value)} ({value!r})')
-        return tuple(float(v) for v in value)
-    raise TypeError(f'unsupported annotation {typ!r}')  # a bug in this module, not the file
-
-
-def _mapping(data: Any, key: str) -> dict:
-    if not isinstance(data, dict):
-        where = key or 'the file'
-        raise _Fail(key, f'{where} must be a mapping of keys, got {_type_name(data)}')
-    for k in data:
-        if isinstance(k, bool):
-            raise _Fail(key, f'key {k!r} is not a string (YAML reads a bare on/off/yes/no as '
-                             "a boolean: quote it, e.g. 'on': true)")
-        if not isinstance(k, str):
-            raise _Fail(key, f'key {k!r} is not a string')
-    return data
+def _fail(path: str, reason: str, kind: str = INVALID) -> LoadError:
+    """Return the loader's error for one problem the scenario's own checks found at ``path``."""
+    return LoadError(Problem(path, kind, reason))
 
 
 def _join(prefix: str, key: str) -> str:
     return f'{prefix}.{key}' if prefix else key
 
 
-def _build(cls: type, data: Any, prefix: str, skip: tuple[str, ...] = ()) -> Any:
-    """Build the dataclass ``cls`` from a mapping, checking keys, types and ranges."""
-    data = _mapping(data, prefix)
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in fields(cls) if f.name not in skip]
-    for k in data:
-        if k not in names:
-            raise _Fail(_join(prefix, k), f'unknown key (allowed: {", ".join(names)})')
-    kwargs = {k: _coerce(v, hints[k], _join(prefix, k)) for k, v in data.items()}
-    try:
-        return cls(**kwargs)
-    except ParamError as e:
-        raise _Fail(_join(prefix, e.key), e.reason) from None
-
-
 def _profile(data: Any, key: str) -> Any:
-    data = _mapping(data, key)
+    data = as_mapping(data, key)
     if 'kind' not in data:
-        raise _Fail(_join(key, 'kind'),
-                    f'missing required key (one of: {", ".join(PROFILE_KINDS)})')
+        raise _fail(_join(key, 'kind'),
+                    f'missing required key (one of: {", ".join(PROFILE_KINDS)})', MISSING_KEY)
     kind = data['kind']
     if kind not in PROFILE_KINDS:
-        raise _Fail(_join(key, 'kind'),
-                    f'unknown profile kind {kind!r} (one of: {", ".join(PROFILE_KINDS)})')
+        raise _fail(_join(key, 'kind'),
+                    f'unknown profile kind {kind!r} (one of: {", ".join(PROFILE_KINDS)})',
+                    OUT_OF_RANGE)
     rest = {k: v for k, v in data.items() if k != 'kind'}
-    return _build(PROFILE_KINDS[kind], rest, key)
+    return load(PROFILE_KINDS[kind], rest, where=key)
 
 
 def _sheet(data: Any, key: str) -> SheetParams:
-    data = _mapping(data, key)
+    data = as_mapping(data, key)
     for k in data:
         if k != 'profiles':
-            raise _Fail(_join(key, k), 'unknown key (allowed: profiles)')
+            raise _fail(_join(key, k), 'unknown key (allowed: profiles)', UNKNOWN_KEY)
     profs = data.get('profiles', [])
     if not isinstance(profs, list):
-        raise _Fail(_join(key, 'profiles'), f'expected a list, got {_type_name(profs)}')
+        raise _fail(_join(key, 'profiles'), f'expected a list, got {type_name(profs)}',
+                    WRONG_TYPE)
     built = tuple(_profile(p, f'{key}.profiles[{i}]') for i, p in enumerate(profs))
     try:
         return SheetParams(profiles=built)
     except ParamError as e:
-        raise _Fail(_join(key, e.key), e.reason) from None
+        raise _fail(_join(key, e.key), e.reason) from None
 
 
 def _event(data: Any, key: str, duration_s: float) -> Event:
-    data = _mapping(data, key)
+    data = as_mapping(data, key)
     for req in ('t_s', 'do'):
         if req not in data:
-            raise _Fail(_join(key, req), 'missing required key')
-    t_s = _coerce(data['t_s'], float, _join(key, 't_s'))
+            raise _fail(_join(key, req), 'missing required key', MISSING_KEY)
+    t_s = coerce(data['t_s'], float, _join(key, 't_s'))
     if not 0.0 <= t_s <= duration_s:
-        raise _Fail(_join(key, 't_s'),
-                    f'{t_s} is outside the run (0 .. duration_s = {duration_s})')
+        raise _fail(_join(key, 't_s'),
+                    f'{t_s} is outside the run (0 .. duration_s = {duration_s})', OUT_OF_RANGE)
     name = data['do']
     if name not in EVENTS:
-        raise _Fail(_join(key, 'do'), f'unknown event {name!r} (one of: {", ".join(EVENTS)})')
+        raise _fail(_join(key, 'do'), f'unknown event {name!r} (one of: {", ".join(EVENTS)})',
+                    OUT_OF_RANGE)
     schema = EVENTS[name]
     args = {}
     for k in data:
@@ -262,25 +208,29 @@ def _event(data: Any, key: str, duration_s: float) -> Event:
             continue
         if k not in schema:
             allowed = ', '.join(schema) or 'none'
-            raise _Fail(_join(key, k), f'unknown argument of {name} (allowed: {allowed})')
+            raise _fail(_join(key, k), f'unknown argument of {name} (allowed: {allowed})',
+                        UNKNOWN_KEY)
     for k, (typ, default, lo, hi) in schema.items():
         sub = _join(key, k)
         if k not in data:
             if default is REQUIRED:
-                raise _Fail(sub, f'missing required argument of {name}')
+                raise _fail(sub, f'missing required argument of {name}', MISSING_KEY)
             args[k] = default
             continue
-        v = _coerce(data[k], typ, sub)
+        v = coerce(data[k], typ, sub)
         if typ is float and (math.isnan(v) or (lo is not None and v < lo)
                              or (hi is not None and v > hi)):
             lo_s = '-inf' if lo is None else lo
             hi_s = 'inf' if hi is None else hi
-            raise _Fail(sub, f'{v} out of range, must be within [{lo_s}, {hi_s}]')
+            raise _fail(sub, f'{v} out of range, must be within [{lo_s}, {hi_s}]',
+                        OUT_OF_RANGE)
         args[k] = v
     if name == 'target_wave' and args['kind'] not in WAVE_KINDS:
-        raise _Fail(_join(key, 'kind'), f'{args["kind"]!r} is not one of {", ".join(WAVE_KINDS)}')
+        raise _fail(_join(key, 'kind'), f'{args["kind"]!r} is not one of '
+                    f'{", ".join(WAVE_KINDS)}', OUT_OF_RANGE)
     if name in ('start_follow', 'set_target', 'gradient_follow') and args['target_gap_mm'] <= 0:
-        raise _Fail(_join(key, 'target_gap_mm'), 'must be > 0 (a gap of 0 is contact)')
+        raise _fail(_join(key, 'target_gap_mm'), 'must be > 0 (a gap of 0 is contact)',
+                    OUT_OF_RANGE)
     return Event(t_s=t_s, name=name, args=args)
 
 
@@ -289,47 +239,51 @@ def scenario_from_dict(data: Any, source: str = '') -> Scenario:
     label = source or '<dict>'
     try:
         return _scenario(data, source)
-    except _Fail as e:
-        msg = f'{label}: {e.key or "(top level)"}: {e.message}'
-        raise ScenarioError(' '.join(msg.split())) from None
+    except LoadError as e:
+        raise ScenarioError(' '.join(f'{label}: {e}'.split())) from None
 
 
 def _scenario(data: Any, source: str) -> Scenario:
-    data = _mapping(data, '')
+    data = as_mapping(data, '')
     for k in data:
         if k not in _TOP_KEYS:
-            raise _Fail(k, f'unknown key (allowed: {", ".join(_TOP_KEYS)})')
+            raise _fail(k, f'unknown key (allowed: {", ".join(_TOP_KEYS)})', UNKNOWN_KEY)
     for req in ('name', 'duration_s'):
         if req not in data:
-            raise _Fail(req, 'missing required key')
-    name = _coerce(data['name'], str, 'name')
-    duration_s = _coerce(data['duration_s'], float, 'duration_s')
+            raise _fail(req, 'missing required key', MISSING_KEY)
+    name = coerce(data['name'], str, 'name')
+    duration_s = coerce(data['duration_s'], float, 'duration_s')
     if not 0.0 < duration_s <= 3600.0:
-        raise _Fail('duration_s', f'{duration_s} out of range, must be in (0, 3600] s')
-    seed = _coerce(data.get('seed', 0), int, 'seed')
+        raise _fail('duration_s', f'{duration_s} out of range, must be in (0, 3600] s',
+                    OUT_OF_RANGE)
+    seed = coerce(data.get('seed', 0), int, 'seed')
     if seed < 0:
-        raise _Fail('seed', f'{seed} must be >= 0 (numpy seeds are non-negative)')
-    gap0 = _coerce(data.get('initial_gap_mm', 10.0), float, 'initial_gap_mm')
+        raise _fail('seed', f'{seed} must be >= 0 (numpy seeds are non-negative)',
+                    OUT_OF_RANGE)
+    gap0 = coerce(data.get('initial_gap_mm', 10.0), float, 'initial_gap_mm')
     if not 0.0 < gap0 <= 100.0:
-        raise _Fail('initial_gap_mm', f'{gap0} out of range, must be in (0, 100] mm')
-    cov0 = _coerce(data.get('initial_coverage', 1.0), float, 'initial_coverage')
+        raise _fail('initial_gap_mm', f'{gap0} out of range, must be in (0, 100] mm',
+                    OUT_OF_RANGE)
+    cov0 = coerce(data.get('initial_coverage', 1.0), float, 'initial_coverage')
     if not 0.0 <= cov0 <= 1.0:
-        raise _Fail('initial_coverage', f'{cov0} out of range, must be in [0, 1]')
+        raise _fail('initial_coverage', f'{cov0} out of range, must be in [0, 1]',
+                    OUT_OF_RANGE)
     tl = data.get('timeline', [])
     if not isinstance(tl, list):
-        raise _Fail('timeline', f'expected a list of events, got {_type_name(tl)}')
+        raise _fail('timeline', f'expected a list of events, got {type_name(tl)}',
+                    WRONG_TYPE)
     events = [_event(ev, f'timeline[{i}]', duration_s) for i, ev in enumerate(tl)]
     events.sort(key=lambda ev: ev.t_s)  # stable: same-time events keep file order
     return Scenario(
         name=name, duration_s=duration_s,
-        description=_coerce(data.get('description', ''), str, 'description'),
+        description=coerce(data.get('description', ''), str, 'description'),
         seed=seed, initial_gap_mm=gap0, initial_coverage=cov0,
-        axis=_build(AxisParams, data.get('axis', {}), 'axis'),
-        sensor=_build(SensorParams, data.get('sensor', {}), 'sensor'),
-        encoder=_build(EncoderParams, data.get('encoder', {}), 'encoder'),
+        axis=load(AxisParams, data.get('axis', {}), where='axis'),
+        sensor=load(SensorParams, data.get('sensor', {}), where='sensor'),
+        encoder=load(EncoderParams, data.get('encoder', {}), where='encoder'),
         sheet=_sheet(data.get('sheet', {}), 'sheet'),
         timeline=tuple(events), source=source,
-        expect_fault=_coerce(data.get('expect_fault', False), bool, 'expect_fault'))
+        expect_fault=coerce(data.get('expect_fault', False), bool, 'expect_fault'))
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
