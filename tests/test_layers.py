@@ -12,11 +12,13 @@ Read from the source files (ast), nothing is imported:
 * ``ladrc_cia402``'s CANopen layer (``ds402``, ``emcy``, ``units``, ``mapping``) no rclpy;
 * ``ladrc_linuxcnc``'s files that run on the system Python inside LinuxCNC (``hal_component``,
   ``display``, ``z_filter``, ``gcode_path``, and ``protocol`` they share) import only the
-  standard library, LinuxCNC's own modules and ``protocol``: no rclpy, no numpy, nothing of the contract; LinuxCNC's modules
-  (``hal``, ``linuxcnc``, ``gcode``: the Debian package linuxcnc-uspace, no rosdep key) only
-  there;
+  standard library, LinuxCNC's own modules and ``protocol``: no rclpy, no numpy, nothing of
+  the contract; LinuxCNC's modules (``hal``, ``linuxcnc``, ``gcode``: the Debian package
+  linuxcnc-uspace, no rosdep key) only there;
 * each package's package.xml has a ``<depend>`` or ``<exec_depend>`` for every third-party
-  top-level module its Python files import (including imports inside functions).
+  top-level module its Python files import (including imports inside functions);
+* no package imports a private name (``_name``, or a name from a ``_module``) of another
+  package: what crosses a package's border is its public API.
 """
 
 from __future__ import annotations
@@ -278,6 +280,38 @@ def test_package_xml_declares_every_import(package):
     assert tests and not missing_depends(tests, xml, TEST_DEPEND_TAGS)
 
 
+def _private(name: str) -> bool:
+    return name.startswith('_') and not name.startswith('__')
+
+
+def private_imports(source: str, own: str, filename: str = '<string>') -> list[str]:
+    """Return ``'module.name'`` for every private name ``source`` imports from another package.
+
+    A private name is ``_name`` or anything under a ``_module``; the own package (``own``),
+    relative imports and packages outside the project (not ``ladrc_*``) do not count.
+    """
+    out = []
+    for node in ast.walk(ast.parse(source, filename)):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            parts = node.module.split('.')
+            if not parts[0].startswith('ladrc_') or parts[0] == own:
+                continue
+            out += [f'{node.module}.{a.name}' for a in node.names
+                    if any(map(_private, parts)) or _private(a.name)]
+        elif isinstance(node, ast.Import):
+            out += [a.name for a in node.names if a.name.startswith('ladrc_')
+                    and a.name.split('.')[0] != own and any(map(_private, a.name.split('.')))]
+    return out
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_no_package_imports_a_private_name_of_another(package):
+    offenders = {_rel(p): private_imports(p.read_text(encoding='utf-8'), package, str(p))
+                 for p in _py_files(package)}
+    assert not {k: v for k, v in offenders.items() if v}, \
+        f'{package} imports private names of other packages (make them public): {offenders}'
+
+
 # ---- the checks themselves, on small in-memory examples ------------------------------------
 EXAMPLE_XML = """<?xml version="1.0"?>
 <package format="3">
@@ -306,6 +340,23 @@ def test_import_scan_finds_nested_and_skips_relative_imports():
     mods = imported_modules(EXAMPLE_SOURCE)
     assert mods == {'__future__', 'os', 'numpy', 'demo', 'yaml', 'rclpy'}
     assert third_party(mods, own='demo') == {'numpy', 'yaml', 'rclpy'}
+
+
+def test_a_private_import_across_packages_is_found():
+    source = """
+from ladrc_sim.job import jobfile, _helper
+from ladrc_sim._internal.mod import thing
+from ladrc_demo.x import _own
+from .sibling import _fine
+import ladrc_sim._internal
+from numpy import _private_of_numpy
+
+def late():
+    from ladrc_contract.schema import _join as join
+"""
+    assert private_imports(source, own='ladrc_demo') == [
+        'ladrc_sim.job._helper', 'ladrc_sim._internal.mod.thing', 'ladrc_sim._internal',
+        'ladrc_contract.schema._join']
 
 
 def test_missing_key_is_reported():
