@@ -6,7 +6,7 @@ uncompensated observation error of state i, for the 4-state observer (n = 3, ban
 (compensation weak, curves nearly merged); above Ω = 13.3, |A| < 0.1 and φ < 17.52°
 (compensation lost). The transfer functions come from the project's observer matrices
 (``eso.continuous_matrices``) through scipy.signal, are checked against eq. 32 and against the
-sampled ``LinearESO(compensate=True)``, and are plotted as Fig. 2 (docs/paper-eso-frequency.md).
+sampled ``LinearESO(compensate=True)``, and are plotted as Fig. 2 (docs/estimators.md, "Paper §4").
 
 Prints a table beside the paper's figures; the last line is one JSON object: the paper's
 figures (``omega_lost_paper``, ``phi_lost_paper_deg``, ``omega_weak_paper``,
