@@ -1,6 +1,6 @@
 """The follow controller on the identified plant of notes §1.2: gain, units and intervals.
 
-Three parts (docs/identified-plant.md):
+Three parts (docs/identification.md):
 
 1. The linear loop (``loop.analyse``, the machinery of ``ladrc analyze``) of the shipped LADRC
    and PID on the §1.2 plant for ``identified_gain`` = 1/16.75 (b0 = 1, the sim's default),

@@ -24,7 +24,7 @@ Two plant models (notes §1):
   only meaningful over seconds, as the identification was. No acceleration limit applies to
   it; the command is clipped to ``+-v_max``. The four coefficients are parameters
   (``identified_n1, n0, d1, d0``, defaults the notes' values) so that a run can sit at an end
-  of the notes' intervals; units and intervals: docs/identified-plant.md.
+  of the notes' intervals; units and intervals: docs/identification.md.
 
 A drive that is disabled or faulted ignores the command and decelerates to a stop at
 ``a_max`` (the identified model simply freezes). An optional dead time delays the command by
@@ -88,7 +88,7 @@ class AxisParams:
     dead_time_ticks: int = param(0, '', 'whole ticks of command delay', ge=0, le=1000)
     identified_gain: float = param(1.0 / 16.75, '', 'command scale into the §1.2 model', gt=0.0)
     # notes §1.2 coefficients, (n1 s + n0) / (s^2 + d1 s + d0); the notes' +/- (one standard
-    # deviation) lets a run sit at an interval end (docs/identified-plant.md)
+    # deviation) lets a run sit at an interval end (docs/identification.md)
     identified_n1: float = param(IDENTIFIED_NUM[0], '', '§1.2 numerator s term, +/-0.2556', gt=0.0)
     identified_n0: float = param(IDENTIFIED_NUM[1], '', '§1.2 numerator constant, +/-1.816')
     identified_d1: float = param(IDENTIFIED_DEN[1], '', '§1.2 denominator s term, +/-0.1804')

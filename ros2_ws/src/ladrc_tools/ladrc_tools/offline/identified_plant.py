@@ -12,7 +12,7 @@ clipped to ±v_max, times ``identified_gain``, drives G; the position is G's out
 plant, ZOH-discretized at the tick exactly as the simulator does, is written in the layout of
 ``ladrc_follow.analysis.loop.axis_ss`` (inputs command and sheet; outputs reading, encoder,
 nozzle) so that ``loop.analyse`` — the machinery of ``ladrc analyze`` — closes the shipped
-controller around it. Pure module (numpy, scipy; no rclpy). docs/identified-plant.md.
+controller around it. Pure module (numpy, scipy; no rclpy). docs/identification.md.
 """
 
 from __future__ import annotations
