@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import sys
 import threading
 import time
@@ -42,8 +41,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker, Outgoing
 from ladrc_contract.commander_lock import CommanderLock, describe
-from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode, SampleWait
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.ros_params import declare_section
@@ -53,7 +52,6 @@ from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, VelocityCommand
 from ladrc_msgs.srv import ResetFault
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.signals import SignalHandlerOptions
 
 from . import ds402, mapping
 from .master import Command, ConfigError, DriverParams, Master, Sample, configure
@@ -385,121 +383,123 @@ class Lifeline(threading.Thread):
             self.stop.wait(self.period_s)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: ``ros2 run ladrc_cia402 driver_node --ros-args -p eds:=…``."""
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = services = net = lifeline = None
-    master = None
+def _make_node() -> DriverNode:
     try:
-        try:
-            node = DriverNode()
-        except (ValueError, rclpy.exceptions.ParameterException) as exc:
-            print(f'driver_node: {exc}', file=sys.stderr)
-            return 2
-        p = node.p
+        return DriverNode()
+    except (ValueError, rclpy.exceptions.ParameterException) as exc:
+        raise StartError(str(exc)) from None
 
-        def _stop(_signum, _frame):
-            node.running = False
 
-        signal.signal(signal.SIGINT, _stop)
-        signal.signal(signal.SIGTERM, _stop)
-        # the plan before the bus: a drive the driver cannot run is refused in one line
-        from .device_file import PlanError, plan_text
-        try:
-            plan = p.plan()
-        except (PlanError, ConfigError) as exc:
-            print(f'driver_node: {exc}', file=sys.stderr)
-            return 2
-        node.publish_gap = plan.gap_source != 'topic'
-        for line in plan_text(plan).splitlines():
-            node.get_logger().info(line)
-        try:
-            net = _connect(p)
-        except Exception as exc:  # noqa: BLE001 -- one line
-            print(f'driver_node: cannot open the CAN bus {p.bus_interface}:{p.bus_channel}: '
-                  f'{exc}', file=sys.stderr)
-            return 2
-        # the cycle thread at its priority, the CAN receive thread (python-can's notifier,
-        # made by the connect above) and the middleware's one above: a TPDO is taken in as
-        # soon as it arrives, whatever else runs (ladrc_contract/realtime.py)
-        applied, warnings = apply_realtime(p.thread_priority, [], p.lock_memory)
-        for text in warnings:
-            node.get_logger().warning(text)
-        fifo = any(a.startswith('SCHED_FIFO') for a in applied)
-        services = ServiceThread(node.context, (node,))
-        services.start(p.thread_priority - 1 if fifo else 0)
-        try:
-            remote = _remote_node(net, plan.node_id, plan.eds_path)
-            io = None
-            if plan.io_node_id:
-                io_node = _remote_node(net, plan.io_node_id, plan.device.gap.dcf, plan.io_od)
-                io = (io_node.sdo, io_node.nmt)
-            if plan.heartbeat_producer_ms:
-                lifeline = Lifeline(net, 0x700 + plan.device.master_node_id,
-                                    plan.heartbeat_producer_ms * 1e-3, remote=False)
-                lifeline.start()
-            node.config_line = configure(remote.sdo, remote.nmt, p, plan=plan, io=io)
-            if plan.guard_time_ms:
-                lifeline = Lifeline(net, 0x700 + plan.node_id, plan.guard_time_ms * 1e-3,
-                                    remote=True)
-                lifeline.start()
-        except ConfigError as exc:
-            print(f'driver_node: {exc}', file=sys.stderr)
-            return 2
-        node.get_logger().info(node.config_line)
+def _disconnect(net) -> None:
+    try:
+        net.disconnect()
+    except Exception:  # noqa: BLE001, S110 -- the bus is gone already
+        pass
 
-        def send(cob_id: int, data: bytes) -> None:
-            net.send_message(cob_id, data)
 
-        master = Master(p, send, plan)
-        for cob in master.frame_ids:
-            net.subscribe(cob, lambda can_id, data, ts: master.on_frame(can_id, data))
-        node.master = master
-        try:
-            if node.lockstep:
-                if not node.wait_for_controller():
-                    if not node.running:
-                        return 0
-                    print(f'driver_node: lock step: no controller within '
-                          f'{p.wait_for_controller_s:g} s (commanding axis/velocity_command '
-                          'and reading both samples)', file=sys.stderr)
-                    return 3
-                node.run_lockstep(master)
-            else:
-                node.run_free(master)
-        except DriverAbort as exc:
-            print(f'driver_node: {exc}', file=sys.stderr)
-            return 3
-        return 0
-    except Exception as exc:  # noqa: BLE001 -- every exception path ends in a quick stop
-        print(f'driver_node: {type(exc).__name__}: {exc}; quick stop', file=sys.stderr)
-        return 1
-    finally:
-        if master is not None:
-            # one line for the logs and the benches: what the bus did over the run
-            print('driver_node: ' + json.dumps({
-                'cycles': master.cycles, 'late_tpdo_cycles': master.late_total,
-                'missed_tpdo_cycles': master.missed_total, 'emcy_received': master.emcy_count,
-                'samples_published': node.seq if node is not None else 0,
-                'late_cycles': node.late_cycles if node is not None else 0}), flush=True)
-            try:  # leave the drive at rest: quick stop, then a disabled drive
-                master.send_rpdos(ds402.CW_QUICK_STOP, 0)
-                master.send(mapping.SYNC_COB_ID, b'')
-            except Exception:  # noqa: BLE001, S110 -- the bus is gone: the deadline stops it
-                pass
-        if lifeline is not None:
-            lifeline.stop.set()
-        if net is not None:
-            try:
-                net.disconnect()
-            except Exception:  # noqa: BLE001, S110
-                pass
-        if services is not None:
-            services.close()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+def _run(node: DriverNode, node_run: NodeRun) -> int:
+    """Plan, open the bus, configure the drive, run the cycle; the exit code."""
+    p = node.p
+
+    def _stop() -> None:
+        node.running = False
+
+    node_run.on_stop(_stop)
+    # the plan before the bus: a drive the driver cannot run is refused in one line
+    from .device_file import PlanError, plan_text
+    try:
+        plan = p.plan()
+    except (PlanError, ConfigError) as exc:
+        raise StartError(str(exc)) from None
+    node.publish_gap = plan.gap_source != 'topic'
+    for line in plan_text(plan).splitlines():
+        node.get_logger().info(line)
+    try:
+        net = _connect(p)
+    except Exception as exc:  # noqa: BLE001 -- one line
+        raise StartError(f'cannot open the CAN bus {p.bus_interface}:{p.bus_channel}: '
+                         f'{exc}') from None
+    node_run.defer(_disconnect, net)
+    # the cycle thread at its priority, the CAN receive thread (python-can's notifier,
+    # made by the connect above) and the middleware's one above: a TPDO is taken in as
+    # soon as it arrives, whatever else runs (ladrc_contract/realtime.py)
+    applied, warnings = apply_realtime(p.thread_priority, [], p.lock_memory)
+    for text in warnings:
+        node.get_logger().warning(text)
+    fifo = any(a.startswith('SCHED_FIFO') for a in applied)
+    services = ServiceThread(node.context, (node,))
+    node_run.defer(services.close)
+    services.start(p.thread_priority - 1 if fifo else 0)
+    try:
+        remote = _remote_node(net, plan.node_id, plan.eds_path)
+        io = None
+        if plan.io_node_id:
+            io_node = _remote_node(net, plan.io_node_id, plan.device.gap.dcf, plan.io_od)
+            io = (io_node.sdo, io_node.nmt)
+        if plan.heartbeat_producer_ms:
+            lifeline = Lifeline(net, 0x700 + plan.device.master_node_id,
+                                plan.heartbeat_producer_ms * 1e-3, remote=False)
+            node_run.defer(lifeline.stop.set)
+            lifeline.start()
+        node.config_line = configure(remote.sdo, remote.nmt, p, plan=plan, io=io)
+        if plan.guard_time_ms:
+            lifeline = Lifeline(net, 0x700 + plan.node_id, plan.guard_time_ms * 1e-3,
+                                remote=True)
+            node_run.defer(lifeline.stop.set)
+            lifeline.start()
+    except ConfigError as exc:
+        raise StartError(str(exc)) from None
+    node.get_logger().info(node.config_line)
+
+    def send(cob_id: int, data: bytes) -> None:
+        net.send_message(cob_id, data)
+
+    master = Master(p, send, plan)
+    for cob in master.frame_ids:
+        net.subscribe(cob, lambda can_id, data, ts: master.on_frame(can_id, data))
+    node.master = master
+    try:
+        if node.lockstep:
+            if not node.wait_for_controller():
+                if not node.running:
+                    return 0
+                print(f'driver_node: lock step: no controller within '
+                      f'{p.wait_for_controller_s:g} s (commanding axis/velocity_command '
+                      'and reading both samples)', file=sys.stderr)
+                return 3
+            node.run_lockstep(master)
+        else:
+            node.run_free(master)
+    except DriverAbort as exc:
+        print(f'driver_node: {exc}', file=sys.stderr)
+        return 3
+    return 0
+
+
+def _quick_stop(node: DriverNode, _reason: str) -> None:
+    """Print what the bus did over the run; leave the drive at rest (quick stop, disabled)."""
+    master = node.master
+    if master is None:  # the drive never ran
+        return
+    # one line for the logs and the benches: what the bus did over the run
+    print('driver_node: ' + json.dumps({
+        'cycles': master.cycles, 'late_tpdo_cycles': master.late_total,
+        'missed_tpdo_cycles': master.missed_total, 'emcy_received': master.emcy_count,
+        'samples_published': node.seq, 'late_cycles': node.late_cycles}), flush=True)
+    try:
+        master.send_rpdos(ds402.CW_QUICK_STOP, 0)
+        master.send(mapping.SYNC_COB_ID, b'')
+    except Exception:  # noqa: BLE001, S110 -- the bus is gone: the deadline stops it
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_cia402 driver_node --ros-args -p eds:=…``.
+
+    Every path once the drive ran ends in a quick stop (:func:`_quick_stop`), the bus's
+    figures printed on one line.
+    """
+    return run_node('driver_node', _make_node, _run, args=argv, zero=_quick_stop)
 
 
 if __name__ == '__main__':

@@ -18,10 +18,10 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
-import signal
 import sys
 
 from ladrc_cia402.device_file import PlanError
+from ladrc_contract.node_entry import stop_signals
 
 from ..headless.runner import run
 from ..headless.scenario import ScenarioError, load_scenario
@@ -54,35 +54,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     network = connect(a.bus)
     drive = None
-    try:
+    with stop_signals() as stop:
         try:
-            drive = CanDrive(network, a.node_id, a.eds, device=a.device,
-                             lockstep=not a.free_running, lockstep_timeout_s=a.lockstep_timeout)
-        except PlanError as exc:
-            print(f'emulator: {exc}', file=sys.stderr)
-            return 2
-        def _stop(*_):
-            drive.running = False
+            try:
+                drive = CanDrive(network, a.node_id, a.eds, device=a.device,
+                                 lockstep=not a.free_running,
+                                 lockstep_timeout_s=a.lockstep_timeout)
+            except PlanError as exc:
+                print(f'emulator: {exc}', file=sys.stderr)
+                return 2
 
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, _stop)
-        drive.boot()
-        print(f'emulator: node {drive.node_id} on {a.bus}, h_s {drive.h_s:g} s, scenario '
-              f'{scenario.name}', flush=True)
-        try:
-            run(scenario, drive, h_s=drive.h_s)
-            print(f'emulator: scenario {scenario.name} ended after {drive.seq} periods',
-                  flush=True)
-        except StopDrive:
-            pass
-        except LockstepAbort as exc:
-            print(f'emulator: {exc}', file=sys.stderr)
-            return 3
-        return 0
-    finally:
-        if drive is not None:
-            drive.node.nmt.stop_heartbeat()
-        network.disconnect()
+            def _stop() -> None:
+                drive.running = False
+
+            stop.on_stop(_stop)
+            drive.boot()
+            print(f'emulator: node {drive.node_id} on {a.bus}, h_s {drive.h_s:g} s, scenario '
+                  f'{scenario.name}', flush=True)
+            try:
+                run(scenario, drive, h_s=drive.h_s)
+                print(f'emulator: scenario {scenario.name} ended after {drive.seq} periods',
+                      flush=True)
+            except StopDrive:
+                pass
+            except LockstepAbort as exc:
+                print(f'emulator: {exc}', file=sys.stderr)
+                return 3
+            return 0
+        finally:
+            if drive is not None:
+                drive.node.nmt.stop_heartbeat()
+            network.disconnect()
 
 
 if __name__ == '__main__':

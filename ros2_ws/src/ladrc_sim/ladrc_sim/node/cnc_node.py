@@ -25,15 +25,14 @@ sample; the sim's step k waits for that (docs/follow-node.md, "Lock step"): equa
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import time
 from typing import Any
 
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
-from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode, SampleWait
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.service_thread import ServiceThread
@@ -45,8 +44,6 @@ from ladrc_contract.topics import (
     STATUS_TOPIC,
 )
 from ladrc_msgs.msg import CncMotion, FollowStatus, LockStep
-import rclpy
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from ..job.cnc import COMMANDS
@@ -219,71 +216,72 @@ class CncNode(LoopNode):
         return text
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: ``ros2 run ladrc_sim cnc_node --ros-args -p job:=NAME``."""
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = services = None
+def _make_node() -> CncNode:
     try:
-        try:
-            node = CncNode()
-        except (JobError, ValueError) as exc:
-            print(f'cnc_node: {exc}', file=sys.stderr)
-            return 2
-        priority = 0 if node.lockstep else int(node.get_parameter('thread_priority').value)
-        _, warnings = apply_realtime(priority, [], bool(node.get_parameter('lock_memory').value))
-        for text in warnings:
-            node.get_logger().warning(text)
-        services = ServiceThread(node.context, (node,))
-        services.start(0)
+        return CncNode()
+    except (JobError, ValueError) as exc:
+        raise StartError(str(exc)) from None
 
-        def _stop(_signum, _frame):
-            node.running = False
 
-        signal.signal(signal.SIGINT, _stop)
-        signal.signal(signal.SIGTERM, _stop)
-        wait_s = float(node.get_parameter('wait_for_controller_s').value)
-        deadline = time.monotonic() + wait_s
-        while not node.ready():
+def _run(node: CncNode, node_run: NodeRun) -> int:
+    """Wait for the height controller, run the job, publish and print its log; the exit code."""
+    priority = 0 if node.lockstep else int(node.get_parameter('thread_priority').value)
+    _, warnings = apply_realtime(priority, [], bool(node.get_parameter('lock_memory').value))
+    for text in warnings:
+        node.get_logger().warning(text)
+    services = ServiceThread(node.context, (node,))
+    node_run.defer(services.close)
+    services.start(0)
+
+    def _stop() -> None:
+        node.running = False
+
+    node_run.on_stop(_stop)
+    wait_s = float(node.get_parameter('wait_for_controller_s').value)
+    deadline = time.monotonic() + wait_s
+    while not node.ready():
+        if time.monotonic() > deadline or not node.running:
+            print(f'cnc_node: no height controller within {wait_s:g} s (follow services, '
+                  'follow/status' + (', the sim reading cnc/lockstep' if node.lockstep
+                                     else '') + ')', file=sys.stderr)
+            return 3
+        time.sleep(0.05)
+    if not node.lockstep:  # the axis is up: the controller holds a sensor sample
+        while node.link.take_status() < 0 or node.link.gap_seq == 0:
             if time.monotonic() > deadline or not node.running:
-                print(f'cnc_node: no height controller within {wait_s:g} s (follow services, '
-                      'follow/status' + (', the sim reading cnc/lockstep' if node.lockstep
-                                         else '') + ')', file=sys.stderr)
+                print(f'cnc_node: the height controller had no sensor sample within '
+                      f'{wait_s:g} s', file=sys.stderr)
                 return 3
-            time.sleep(0.05)
-        if not node.lockstep:  # the axis is up: the controller holds a sensor sample
-            while node.link.take_status() < 0 or node.link.gap_seq == 0:
-                if time.monotonic() > deadline or not node.running:
-                    print(f'cnc_node: the height controller had no sensor sample within '
-                          f'{wait_s:g} s', file=sys.stderr)
-                    return 3
-                time.sleep(0.01)
-        node.get_logger().info(f'job {node.job.name}: {len(node.program.contours)} contours')
-        code = 0  # the job ran: finished, or aborted with its reason (a job's outcome)
-        try:
-            node.run()
-        except LockstepTimeout as exc:
-            node.station.log.aborted = f'lock step: {exc}'
-            print(f'cnc_node: lock step aborted: {exc}', file=sys.stderr)
-            code = 3
-        except KeyboardInterrupt:
-            node.station.log.aborted = node.station.log.aborted or 'interrupted'
-        text = node.publish_log()
-        late = wait_acknowledged(tuple(p for p in (node.pub_motion, node.pub_step, node.pub_job)
-                                       if p is not None), node.timeout_ns * 1e-9)
-        if late:
-            node.get_logger().warning(f'messages on {", ".join(late)} not acknowledged by every '
-                                      'reader')
-        print(json.dumps({'job': node.job.name, **json.loads(text)}), flush=True)
-        while node.running and not node.get_parameter('exit_at_end').value:
-            time.sleep(0.1)
-        return code
-    finally:
-        if services is not None:
-            services.close()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+            time.sleep(0.01)
+    node.get_logger().info(f'job {node.job.name}: {len(node.program.contours)} contours')
+    code = 0  # the job ran: finished, or aborted with its reason (a job's outcome)
+    try:
+        node.run()
+    except LockstepTimeout as exc:
+        node.station.log.aborted = f'lock step: {exc}'
+        print(f'cnc_node: lock step aborted: {exc}', file=sys.stderr)
+        code = 3
+    except KeyboardInterrupt:
+        node.station.log.aborted = node.station.log.aborted or 'interrupted'
+    text = node.publish_log()
+    late = wait_acknowledged(tuple(p for p in (node.pub_motion, node.pub_step, node.pub_job)
+                                   if p is not None), node.timeout_ns * 1e-9)
+    if late:
+        node.get_logger().warning(f'messages on {", ".join(late)} not acknowledged by every '
+                                  'reader')
+    print(json.dumps({'job': node.job.name, **json.loads(text)}), flush=True)
+    while node.running and not node.get_parameter('exit_at_end').value:
+        time.sleep(0.1)
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_sim cnc_node --ros-args -p job:=NAME``.
+
+    The CNC has no command of its own to zero (the axis's zero command is the follow node's):
+    a stop request ends the job as interrupted, its log published.
+    """
+    return run_node('cnc_node', _make_node, _run, args=argv)
 
 
 if __name__ == '__main__':

@@ -45,7 +45,6 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-import signal
 import sys
 import time
 from typing import Any
@@ -54,8 +53,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker, Outgoing
 from ladrc_contract.commander_lock import describe
-from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.service_thread import ServiceThread
@@ -83,9 +82,7 @@ from ladrc_msgs.msg import (
     VelocityCommand,
 )
 from ladrc_msgs.srv import ResetFault
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from ..headless.runner import run
@@ -458,118 +455,122 @@ def _can_bridge(node: SimNode, realtime: bool):
     return CanDriveBridge(node, drive, realtime)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: ``ros2 run ladrc_sim sim_node --ros-args -p scenario:=showcase``."""
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = services = None
+def _make_node() -> SimNode:
     try:
-        try:
-            node = SimNode()
-        except (ScenarioError, JobError, ValueError) as exc:
-            print(f'sim_node: {exc}', file=sys.stderr)
-            return 2
-        realtime = bool(node.get_parameter('realtime').value)
-        bridge = None
-        if node.drive_kind == 'cia402':
-            # the bus first: its receive thread (python-can's notifier) is then scheduled as
-            # the middleware's, one above the loop (it answers each SYNC)
-            try:
-                bridge = _can_bridge(node, realtime)
-            except (ValueError, OSError) as exc:
-                print(f'sim_node: CiA 402 drive: {exc}', file=sys.stderr)
-                return 2
-        cpu = int(node.get_parameter('cpu').value)
-        # lock step: no SCHED_FIFO (ladrc_follow's follow_node.main says why)
-        priority = 0 if node.lockstep else int(node.get_parameter('thread_priority').value)
-        applied, warnings = apply_realtime(priority, [cpu] if cpu >= 0 else [],
-                                           bool(node.get_parameter('lock_memory').value))
-        for text in warnings:
-            node.get_logger().warning(text)
-        if bridge is None:
-            bridge = DriveBridge(node, realtime)
-        node.attach(bridge)
-        # services, the scenario's service calls and /diagnostics: a thread of their own, one
-        # below a real-time loop (ladrc_contract.service_thread)
-        services = ServiceThread(node.context, (node,))
-        fifo = any(a.startswith('SCHED_FIFO') for a in applied)
-        services.start(priority - 1 if fifo else 0)
+        return SimNode()
+    except (ScenarioError, JobError, ValueError) as exc:
+        raise StartError(str(exc)) from None
 
-        def _stop(_signum, _frame):
-            bridge.running = False
 
-        signal.signal(signal.SIGINT, _stop)
-        signal.signal(signal.SIGTERM, _stop)
-        wait_s = float(node.get_parameter('wait_for_controller_s').value)
-        if not node.wait_for_controller(max(wait_s, node.lockstep_timeout_s)
-                                        if node.lockstep else wait_s):
-            if node.lockstep:
-                print(f'sim_node: lock step: no controller in lock step within '
-                      f'{max(wait_s, node.lockstep_timeout_s):g} s (a follow node with loop '
-                      "'lockstep' subscribing to sim/lockstep and commanding the axis)",
-                      file=sys.stderr)
-                return 3
-            node.get_logger().warning('controller services not found: playing the scenario '
-                                      'anyway (its follow commands may be lost)')
-        wait_rec = float(node.get_parameter('wait_for_recorder_s').value)
-        if wait_rec > 0 and not node.wait_for_recorder(wait_rec):
-            node.get_logger().warning('no recorder subscribed to sim/truth: playing anyway')
-        settle = time.monotonic() + float(node.get_parameter('start_delay_s').value)
-        while time.monotonic() < settle:
-            time.sleep(0.05)
+def _disconnect(network) -> None:
+    try:
+        network.disconnect()
+    except Exception:  # noqa: BLE001, S110 -- the bus is gone already
+        pass
+
+
+def _run(node: SimNode, node_run: NodeRun) -> int:
+    """Attach the drive, start the services, play the scenario or the job; the exit code."""
+    realtime = bool(node.get_parameter('realtime').value)
+    bridge = None
+    if node.drive_kind == 'cia402':
+        # the bus first: its receive thread (python-can's notifier) is then scheduled as
+        # the middleware's, one above the loop (it answers each SYNC)
         try:
-            if node.job is not None:
-                node.get_logger().info(f'job {node.job.name}: '
-                                       f'{len(node.job.program().contours)} contours')
-                job = (run_job(node.job, JobDrive(node, bridge, remote_cnc=True),
-                               cnc=RemoteCnc(node, bridge)) if node.separate_cnc
-                       else run_job(node.job, JobDrive(node, bridge)))
-                figures = {**job.figures, 'wall_s': round(job.wall_s, 3), 'realtime_x': round(
-                    job.figures['job_time_s'] / max(job.wall_s, 1e-9), 3)}
-                node.get_logger().info(f'job done: {json.dumps(figures, default=str)}')
-                write_figures(str(node.get_parameter('figures_file').value), figures)
-            else:
-                node.get_logger().info(f'scenario {node.scenario.name}: '
-                                       f'{node.scenario.duration_s} s')
-                # the runner calls bridge.wind_down() after the last tick (the controller stops
-                # before its inputs do)
-                result = run(node.scenario, bridge, h_s=node.h_s)
-                node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
-                if bridge.wind_down_problem:
-                    node.get_logger().warning(f'wind-down: {bridge.wind_down_problem}')
-        except StopSimulation:
-            pass
-        except LockstepAbort as exc:
-            print(f'sim_node: {exc}', file=sys.stderr)
-            return 3
+            bridge = _can_bridge(node, realtime)
+        except (ValueError, OSError) as exc:
+            raise StartError(f'CiA 402 drive: {exc}') from None
+        finally:
+            if getattr(node, 'network', None) is not None:
+                node_run.defer(_disconnect, node.network)
+    cpu = int(node.get_parameter('cpu').value)
+    # lock step: no SCHED_FIFO (ladrc_follow's follow_node._run says why)
+    priority = 0 if node.lockstep else int(node.get_parameter('thread_priority').value)
+    applied, warnings = apply_realtime(priority, [cpu] if cpu >= 0 else [],
+                                       bool(node.get_parameter('lock_memory').value))
+    for text in warnings:
+        node.get_logger().warning(text)
+    if bridge is None:
+        bridge = DriveBridge(node, realtime)
+    node.attach(bridge)
+    # services, the scenario's service calls and /diagnostics: a thread of their own, one
+    # below a real-time loop (ladrc_contract.service_thread)
+    services = ServiceThread(node.context, (node,))
+    fifo = any(a.startswith('SCHED_FIFO') for a in applied)
+    node_run.defer(services.close)
+    services.start(priority - 1 if fifo else 0)
+
+    def _stop() -> None:
+        bridge.running = False
+
+    node_run.on_stop(_stop)
+    wait_s = float(node.get_parameter('wait_for_controller_s').value)
+    if not node.wait_for_controller(max(wait_s, node.lockstep_timeout_s)
+                                    if node.lockstep else wait_s):
         if node.lockstep:
-            # reliable writers repair only while they exist: the readers (the recorder, which
-            # may lag on a loaded machine) get every message before this node goes down
-            late = wait_acknowledged(tuple(p for p in (node.pub_gap, node.pub_fb, node.pub_step,
-                                                       node.pub_truth, node.pub_cnc)
-                                           if p is not None), node.lockstep_timeout_s)
-            if late:
-                node.get_logger().warning(
-                    f'lock step: messages on {", ".join(late)} not acknowledged by every '
-                    f'reader within {node.lockstep_timeout_s:g} s (a reader gone?)')
-        node.get_logger().info(f'commands by source: {json.dumps(node.commander_summary())}')
-        if bridge.running and not node.get_parameter('exit_at_end').value:
-            while bridge.running:
-                bridge.take_commands()
-                time.sleep(0.1)
-        return 0
-    finally:
-        if services is not None:
-            services.close()
-        network = getattr(node, 'network', None)
-        if network is not None:
-            try:
-                network.disconnect()
-            except Exception:  # noqa: BLE001, S110 -- the bus is gone already
-                pass
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+            print(f'sim_node: lock step: no controller in lock step within '
+                  f'{max(wait_s, node.lockstep_timeout_s):g} s (a follow node with loop '
+                  "'lockstep' subscribing to sim/lockstep and commanding the axis)",
+                  file=sys.stderr)
+            return 3
+        node.get_logger().warning('controller services not found: playing the scenario '
+                                  'anyway (its follow commands may be lost)')
+    wait_rec = float(node.get_parameter('wait_for_recorder_s').value)
+    if wait_rec > 0 and not node.wait_for_recorder(wait_rec):
+        node.get_logger().warning('no recorder subscribed to sim/truth: playing anyway')
+    settle = time.monotonic() + float(node.get_parameter('start_delay_s').value)
+    while time.monotonic() < settle:
+        time.sleep(0.05)
+    try:
+        if node.job is not None:
+            node.get_logger().info(f'job {node.job.name}: '
+                                   f'{len(node.job.program().contours)} contours')
+            job = (run_job(node.job, JobDrive(node, bridge, remote_cnc=True),
+                           cnc=RemoteCnc(node, bridge)) if node.separate_cnc
+                   else run_job(node.job, JobDrive(node, bridge)))
+            figures = {**job.figures, 'wall_s': round(job.wall_s, 3), 'realtime_x': round(
+                job.figures['job_time_s'] / max(job.wall_s, 1e-9), 3)}
+            node.get_logger().info(f'job done: {json.dumps(figures, default=str)}')
+            write_figures(str(node.get_parameter('figures_file').value), figures)
+        else:
+            node.get_logger().info(f'scenario {node.scenario.name}: '
+                                   f'{node.scenario.duration_s} s')
+            # the runner calls bridge.wind_down() after the last tick (the controller stops
+            # before its inputs do)
+            result = run(node.scenario, bridge, h_s=node.h_s)
+            node.get_logger().info(f'scenario done: collisions={result.metrics.collisions}')
+            if bridge.wind_down_problem:
+                node.get_logger().warning(f'wind-down: {bridge.wind_down_problem}')
+    except StopSimulation:
+        pass
+    except LockstepAbort as exc:
+        print(f'sim_node: {exc}', file=sys.stderr)
+        return 3
+    if node.lockstep:
+        # reliable writers repair only while they exist: the readers (the recorder, which
+        # may lag on a loaded machine) get every message before this node goes down
+        late = wait_acknowledged(tuple(p for p in (node.pub_gap, node.pub_fb, node.pub_step,
+                                                   node.pub_truth, node.pub_cnc)
+                                       if p is not None), node.lockstep_timeout_s)
+        if late:
+            node.get_logger().warning(
+                f'lock step: messages on {", ".join(late)} not acknowledged by every '
+                f'reader within {node.lockstep_timeout_s:g} s (a reader gone?)')
+    node.get_logger().info(f'commands by source: {json.dumps(node.commander_summary())}')
+    if bridge.running and not node.get_parameter('exit_at_end').value:
+        while bridge.running:
+            bridge.take_commands()
+            time.sleep(0.1)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_sim sim_node --ros-args -p scenario:=showcase``.
+
+    The sim is the plant: it has no command of its own to zero (the axis stops with its
+    controller's zero command, or on the drive's watchdog).
+    """
+    return run_node('sim_node', _make_node, _run, args=argv)
 
 
 if __name__ == '__main__':
