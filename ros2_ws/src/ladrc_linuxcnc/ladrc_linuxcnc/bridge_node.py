@@ -30,7 +30,6 @@ from dataclasses import replace
 import json
 import math
 import select
-import signal
 import socket
 import sys
 import time
@@ -39,8 +38,8 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ladrc_contract import qos
 from ladrc_contract.cdr import CdrPacker
-from ladrc_contract.exit_signals import ignore_stop_signals
 from ladrc_contract.loop_io import LoopNode
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 from ladrc_contract.qos import to_rclpy, wait_acknowledged
 from ladrc_contract.realtime import apply_realtime
 from ladrc_contract.ros_params import descriptor, ros_value
@@ -54,9 +53,7 @@ from ladrc_contract.topics import (
     STATUS_TOPIC,
 )
 from ladrc_msgs.msg import CncMotion, FollowStatus
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from . import protocol as p
@@ -364,69 +361,71 @@ class BridgeNode(LoopNode):
         self.pub_diag.publish(arr)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: ``ros2 run ladrc_linuxcnc bridge_node --ros-args -p socket_path:=PATH``."""
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = services = None
+def _make_node() -> BridgeNode:
     try:
-        try:
-            node = BridgeNode()
-        except ValueError as exc:
-            print(f'bridge_node: {exc}', file=sys.stderr)
-            return 2
-        _, warnings = apply_realtime(node.p.thread_priority, [], node.p.lock_memory)
-        for text in warnings:
-            node.get_logger().warning(text)
-        services = ServiceThread(node.context, (node,))
-        services.start(node.p.thread_priority - 1 if node.p.thread_priority > 1 else 0)
+        return BridgeNode()
+    except ValueError as exc:
+        raise StartError(str(exc)) from None
 
-        def _stop(_signum, _frame):
-            node.running = False
 
-        signal.signal(signal.SIGINT, _stop)
-        signal.signal(signal.SIGTERM, _stop)
-        try:
-            node.connect()
-            end = time.monotonic() + node.p.wait_for_controller_s
-            while not node.controller_ready():
-                if time.monotonic() > end or not node.running:
-                    raise BridgeError(f'no height controller within '
-                                      f'{node.p.wait_for_controller_s:g} s (follow services '
-                                      'and a follow/status with a sensor sample)')
-                # meanwhile LinuxCNC waits: the component keeps its safe outputs
-                try:
-                    node.drain()
-                    node.send_outputs(p.HalOutputs(0, 1.0, p.O_FEED_HOLD, 0))
-                except OSError as exc:
-                    raise BridgeError(f'LinuxCNC gone before the job: {exc}') from None
-                time.sleep(0.02)
-        except BridgeError as exc:
-            print(f'bridge_node: {exc}', file=sys.stderr)
-            return 3
-        node.get_logger().info(f'LinuxCNC bridge up: {json.dumps(node.hello)}')
-        try:
-            node.run()
-        except Exception as exc:  # noqa: BLE001 (the safe outputs first, then one line)
-            node.safe_stop()
-            print(f'bridge_node: stopped by {type(exc).__name__}: {exc}', file=sys.stderr)
-            return 1
-        if not node.running and not node.seq.log.aborted and not node.seq.log.finished:
-            node.seq.log.aborted = node.seq.log.aborted_code = 'interrupted'
-        text = node.publish_log()
+def _run(node: BridgeNode, node_run: NodeRun) -> int:
+    """Connect to LinuxCNC, wait for the height controller, bridge the job; the exit code."""
+    _, warnings = apply_realtime(node.p.thread_priority, [], node.p.lock_memory)
+    for text in warnings:
+        node.get_logger().warning(text)
+    services = ServiceThread(node.context, (node,))
+    node_run.defer(services.close)
+    services.start(node.p.thread_priority - 1 if node.p.thread_priority > 1 else 0)
+
+    def _stop() -> None:
+        node.running = False
+
+    node_run.on_stop(_stop)
+    try:
+        node.connect()
+        end = time.monotonic() + node.p.wait_for_controller_s
+        while not node.controller_ready():
+            if time.monotonic() > end or not node.running:
+                raise BridgeError(f'no height controller within '
+                                  f'{node.p.wait_for_controller_s:g} s (follow services '
+                                  'and a follow/status with a sensor sample)')
+            # meanwhile LinuxCNC waits: the component keeps its safe outputs
+            try:
+                node.drain()
+                node.send_outputs(p.HalOutputs(0, 1.0, p.O_FEED_HOLD, 0))
+            except OSError as exc:
+                raise BridgeError(f'LinuxCNC gone before the job: {exc}') from None
+            time.sleep(0.02)
+    except BridgeError as exc:
+        print(f'bridge_node: {exc}', file=sys.stderr)
+        return 3
+    node.get_logger().info(f'LinuxCNC bridge up: {json.dumps(node.hello)}')
+    try:
+        node.run()
+    except Exception as exc:  # noqa: BLE001 (the safe outputs first, then one line)
         node.safe_stop()
-        late = wait_acknowledged((node.pub_job,), ACK_TIMEOUT_S)
-        if late:
-            node.get_logger().warning(f'cnc/job not acknowledged by every reader within '
-                                      f'{ACK_TIMEOUT_S:g} s')
-        print(text, flush=True)
-        return 0
-    finally:
-        if services is not None:
-            services.close()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+        print(f'bridge_node: stopped by {type(exc).__name__}: {exc}', file=sys.stderr)
+        return 1
+    if not node.running and not node.seq.log.aborted and not node.seq.log.finished:
+        node.seq.log.aborted = node.seq.log.aborted_code = 'interrupted'
+    text = node.publish_log()
+    node.safe_stop()
+    late = wait_acknowledged((node.pub_job,), ACK_TIMEOUT_S)
+    if late:
+        node.get_logger().warning(f'cnc/job not acknowledged by every reader within '
+                                  f'{ACK_TIMEOUT_S:g} s')
+    print(text, flush=True)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: ``ros2 run ladrc_linuxcnc bridge_node --ros-args -p socket_path:=PATH``.
+
+    Every path ends in the safe outputs to LinuxCNC (feed hold, beam off:
+    :meth:`BridgeNode.safe_stop`).
+    """
+    return run_node('bridge_node', _make_node, _run, args=argv,
+                    zero=lambda node, _reason: node.safe_stop())
 
 
 if __name__ == '__main__':
