@@ -602,6 +602,17 @@ def _cell(text: str) -> str:
     return text.replace('|', '\\|')
 
 
+def measured(row: dict) -> str:
+    """Return a row's ``date, commit, machine`` (older rows keep them as three keys)."""
+    return row.get('measured') or f'{row["date"]}, {row["commit"]}, {row["machine"]}'
+
+
+def dump(data: dict) -> str:
+    """Return figures.json's text: one figure a line (``id: {value, measured, ...}``)."""
+    rows = (f' {json.dumps(k)}: {json.dumps(v, ensure_ascii=False)}' for k, v in data.items())
+    return '{\n' + ',\n'.join(rows) + '\n}\n'
+
+
 def render(data: dict) -> str:
     """Render docs/figures.md from the data."""
     out = ['# Figures', '',
@@ -616,14 +627,13 @@ def render(data: dict) -> str:
             value, when = 'not measured yet', ''
         else:
             value = row['value']
-            when = f'{row["date"]}, {row["commit"]}, {row["machine"]}'
+            when = measured(row)
         out.append(f'| <a id="{f.id}"></a>{_cell(f.label)} | {_cell(value)} | `{command(f)}` | '
                    f'{when} |')
     for rid, row in data.items():  # rows measured by a command that is not a bench's run
         if rid not in BY_ID and 'label' in row and 'command' in row:
             out.append(f'| <a id="{rid}"></a>{_cell(row["label"])} | {_cell(row["value"])} | '
-                       f'`{row["command"]}` | {row["date"]}, {row["commit"]}, '
-                       f'{row["machine"]} |')
+                       f'`{row["command"]}` | {measured(row)} |')
     return '\n'.join(out) + '\n'
 
 
@@ -731,10 +741,10 @@ def main() -> int:
             print(f'figures: {f.id}: {exc}', file=sys.stderr, flush=True)
             failed.append(f.id)
             continue
-        data[f.id] = {'value': value, 'date': stamp, 'commit': rev, 'machine': where}
+        data[f.id] = {'value': value, 'measured': f'{stamp}, {rev}, {where}'}
         done.append(f.id)
     tmp = data_file.with_suffix('.json.part')
-    tmp.write_text(json.dumps(data, indent=1, ensure_ascii=False) + '\n', encoding='utf-8')
+    tmp.write_text(dump(data), encoding='utf-8')
     tmp.replace(data_file)
     table_file.write_text(render(data), encoding='utf-8')
     written = [str(data_file), str(table_file)]
