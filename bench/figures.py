@@ -504,18 +504,18 @@ FIGURES: tuple[Figure, ...] = (
     Figure('fleet-flags', "`ladrc fleet`'s flags on the generated fleet against its truth file",
            'fleet_scaling', ('--machines', '4', '--days', '2', '--bags-per-day', '2'),
            _fleet_flags),
-    Figure('sweep-engine', "`ladrc tune`'s sweep (about 2 000 points × every batchable scenario) "
+    Figure('sweep-engine', "`ladrc tune`'s sweep (about 300 points × every batchable scenario) "
            'in one batch on one core vs in parts on a local cluster of 2 workers',
-           'sweep_engine', ('--sets', '2000'),
+           'sweep_engine', ('--sets', '300'),
            lambda r: f'{r["points"]} points × {r["scenarios"]} scenarios: one core '
                      f'{_f(r["one_core_s"])} s (peak {_f(r["driver_peak_rss_mb"])} MB), the '
                      f'engine {_f(r["engine_s"])} s on {r["workers"]} workers (peak '
                      f'{_f(r["worker_peak_rss_mb"])} MB a worker); scores, verdicts and fronts '
                      f'identical: {r["identical"]}; {r["passed"]} through the gate, {r["front"]} '
                      'on the front'),
-    Figure('sweep-engine-large', "`ladrc tune`'s sweep of about 20 000 points × 3 scenarios "
+    Figure('sweep-engine-large', "`ladrc tune`'s sweep of about 3 000 points × 3 scenarios "
            '(one of each class) on the engine alone', 'sweep_engine',
-           ('--sets', '20000', '--engine-only', '--scenarios', 'step,sine_5hz,edge_step_3_1'),
+           ('--sets', '3000', '--engine-only', '--scenarios', 'step,sine_5hz,edge_step_3_1'),
            lambda r: f'{r["points"]} points × {r["scenarios"]} scenarios on {r["workers"]} '
                      f'workers: {_f(r["engine_s"])} s; {r["passed"]} through the gate, '
                      f'{r["front"]} on the front; peak {_f(r["worker_peak_rss_mb"])} MB a worker, '
