@@ -131,8 +131,18 @@ def summary(figures: dict) -> str:
 
 
 def report(line: str) -> None:
-    """Print a line the test log keeps (pytest -rA / the captured output)."""
+    """Print a line the test log keeps (pytest -rA / the captured output).
+
+    With ``LADRC_TEST_REPORT`` set (scripts/run-tests: .test-logs/attempts.log) the line is
+    also appended there after the test's id: the runs and the runs a timing guard stopped,
+    counted over every ``make test``, are the measured basis of :data:`ATTEMPTS`.
+    """
     print(line, file=sys.stderr, flush=True)
+    path = os.environ.get('LADRC_TEST_REPORT')
+    if path:
+        test = os.environ.get('PYTEST_CURRENT_TEST', '?').split(' ')[0]
+        with open(path, 'a', encoding='utf-8') as f:
+            f.write(f'{test} {line}\n')
 
 
 class Client:
