@@ -33,8 +33,8 @@ Human lines go to stderr; the last stdout line is one JSON object: ``date``, ``c
 ``STALL_MAX_NORMAL_S`` (null without a condition of that scheduler) and every condition's
 figures under ``conditions``.
 
-``MEASURED`` below keeps the figures of a full run here; ``STALL_MAX_S`` and
-``STALL_MAX_NORMAL_S`` are what the real-time tests import as the stall they must tolerate.
+``STALL_MAX_S`` and ``STALL_MAX_NORMAL_S`` are what the real-time tests import as the stall they
+must tolerate.
 """
 
 from __future__ import annotations
@@ -54,48 +54,14 @@ import sys
 import threading
 import time
 
-# Figures of a full run (``--seconds 20``, the four conditions in order) on the machine class:
-# a Firecracker VM, 2 vCPUs (Intel Xeon), Linux 6.18 PREEMPT_DYNAMIC, RT throttling
-# 950 ms / 1 s, root (CAP_SYS_NICE: SCHED_FIFO granted). Lateness in ms. A shared machine:
-# other sessions' processes ran too (``foreign_cpu`` = CPUs' worth of time used by processes
-# this script did not start, averaged over the condition).
-MEASURED = {
-    'date': '2026-12-02',
-    'machine': '2 cores (Firecracker VM, nested PVM, AMD EPYC vCPUs, Linux 6.18); SCHED_FIFO '
-               'granted',
-    'seconds_per_condition': 15,
-    'loop': 'sleep to the deadline, take from a loop reader, publish bytes (no executor)',
-    # late_* = wake-up lateness in ms; over_N = ticks later than N ms (of ~30 000)
-    'fifo_idle': {'late_p50': 0.043, 'late_p99': 0.101, 'late_p999': 0.390, 'late_max': 2.02,
-                  'over_2': 1, 'over_5': 0, 'over_10': 0, 'over_50': 0, 'foreign_cpu': 0.00},
-    'fifo_busy': {'late_p50': 0.018, 'late_p99': 0.048, 'late_p999': 0.156, 'late_max': 1.74,
-                  'over_2': 0, 'over_5': 0, 'over_10': 0, 'over_50': 0, 'foreign_cpu': 0.01},
-    'normal_idle': {'late_p50': 0.040, 'late_p99': 0.102, 'late_p999': 0.505, 'late_max': 4.14,
-                    'over_2': 5, 'over_5': 0, 'over_10': 0, 'over_50': 0,
-                    'foreign_cpu': 0.18},
-    'normal_busy': {'late_p50': 0.013, 'late_p99': 0.051, 'late_p999': 0.630, 'late_max': 7.94,
-                    'over_2': 19, 'over_5': 1, 'over_10': 0, 'over_50': 0,
-                    'foreign_cpu': 0.01},
-    # An earlier run (the loop then spun an EventsExecutor, 20 s per condition, other
-    # sessions' node sets running beside it): fifo_idle max 5.37 ms, fifo_busy 1.15 ms,
-    # normal_idle 17.04 ms, normal_busy 15.66 ms. Every SCHED_FIFO stall > 2 ms in either run
-    # was the loop thread neither on a CPU nor waiting for one (asleep past its deadline: the
-    # VM's vCPU not running), every SCHED_OTHER one the thread runnable and waiting for a CPU
-    # (preempted by another process).
-    'note': ("timer slack 1 ns (ladrc_contract.realtime) took the normal scheduler's median "
-             'lateness from 0.07-0.09 ms to 0.01-0.04 ms'),
-}
-
-# The largest stall seen in any SCHED_FIFO condition of either run above (the worse of the two
-# machines' days), rounded up to the next millisecond, times a margin of 2. The margin because
-# the tail is not bounded by what a short run saw: 60-80 s of measurement see each rare event
-# (a vCPU descheduled by the host, a kernel path that does not preempt) only a few times, a
-# test session runs for minutes, and the largest stalls grow with the run length; 2x is the
-# margin between "the worst seen" and "the worst a test may meet" this bench can justify
-# without a longer run (rerun with a larger --seconds to tighten it).
-STALL_MAX_S = 0.012  # max 5.37 ms (fifo_idle, the earlier run) -> 6 ms x 2
+# The stall the real-time tests must tolerate: at least twice the largest wake-up lateness of
+# this bench's SCHED_FIFO conditions (docs/figures.md#stalls), rounded up to a millisecond. Twice,
+# because a short run sees each rare event (a vCPU descheduled by the host, a kernel path that
+# does not preempt) only a few times while a test session runs for minutes, and the largest
+# stall grows with the run length.
+STALL_MAX_S = 0.012
 # The same for the normal scheduler (what a loop meets when SCHED_FIFO is refused).
-STALL_MAX_NORMAL_S = 0.036  # max 17.04 ms (normal_idle, the earlier run) -> 18 ms x 2
+STALL_MAX_NORMAL_S = 0.036
 
 PERIOD_NS = 500_000
 WARMUP_S = 1.0
