@@ -119,13 +119,6 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
     return specs
 
 
-def emulated_drive_eds() -> str:
-    """Return the EDS of the emulated CiA 402 drive (ladrc_sim), which its driver reads too."""
-    from ladrc_sim.cia402.can_drive import default_eds
-
-    return str(default_eds())
-
-
 def emulated_drive_device() -> str:
     """Return the device file of the emulated CiA 402 drive (ladrc_sim), its EDS beside it."""
     from ladrc_sim.cia402.can_drive import default_device

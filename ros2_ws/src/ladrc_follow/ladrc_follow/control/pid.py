@@ -134,10 +134,6 @@ class FollowPID:
         self._ff_enabled = False
         self._ff_count = 0
 
-    def set_target(self, target_mm) -> None:
-        """Set the follow target gap (seed ``FollowPID_SetFollowTarget``)."""
-        self.target_mm = target_mm
-
     def set_pre_out(self, u_mm_s) -> None:
         """Set the previous output (seed ``FollowPID_SetPreOutUnitV``): bumpless hand-over.
 

@@ -61,11 +61,6 @@ class Metrics:
         return asdict(self)
 
 
-def _first_target_index(target: np.ndarray) -> int | None:
-    idx = np.flatnonzero(np.isfinite(target))
-    return int(idx[0]) if idx.size else None
-
-
 def _inside_run(inside: np.ndarray, run0: int = 0) -> np.ndarray:
     """Length of the run of consecutive True ending at each index (``run0`` carried in)."""
     idx = np.arange(inside.size)

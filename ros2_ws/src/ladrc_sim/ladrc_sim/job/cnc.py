@@ -94,7 +94,6 @@ class Cnc:
         self._phase = 'start'
         self._wait_ticks = 0
         self._seq = 0
-        self._edge_ahead = math.inf
         self._tick = 0
         self.cut_done: list[int] = []  # contours finished this tick (the runner drops them)
         self._pierce_seen = False

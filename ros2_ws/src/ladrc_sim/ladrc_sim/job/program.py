@@ -68,7 +68,7 @@ from ezdxf.lldxf.tagger import ascii_tags_loader
 from ezdxf.math import Matrix44, Vec3, fit_points_to_cad_cv
 import numpy as np
 import shapely
-from shapely.geometry import LinearRing, LineString, Point, Polygon
+from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.polygon import orient
 from shapely.ops import polylabel
 
@@ -819,8 +819,3 @@ def _check_on_sheet(contours: list[Contour], sheet_mm: tuple[float, float], name
                 f'{name}: contour {k} (part {c.part}) is not on the sheet: its path spans x '
                 f'{lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f} mm, the sheet 0..'
                 f'{sheet_mm[0]:g} x 0..{sheet_mm[1]:g} mm (dxf_origin_mm places the drawing)')
-
-
-def ring_of(points: np.ndarray) -> LinearRing:
-    """Return ``points`` as a shapely ring (for drawing and checks)."""
-    return LinearRing(points)

@@ -65,11 +65,6 @@ class Encoder:
         self._any = any(stuck) or any(o != 0.0 for o in offset)
         self._last = 0.0
 
-    def quantize(self, position_mm: float) -> float:
-        """Round a position to the encoder's resolution."""
-        r = self._res
-        return round(position_mm / r) * r if r > 0.0 else position_mm
-
     def read(self, i: int, position_mm: float) -> float:
         """Return the encoder reading (mm) at tick ``i`` for the true axis position."""
         if self._any:

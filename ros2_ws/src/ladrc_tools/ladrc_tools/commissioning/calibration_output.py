@@ -14,10 +14,10 @@ from pathlib import Path
 import time
 from typing import Any
 
-from ladrc_follow.control.cap_table import RawToGap, TableError, TableLimits, table_yaml
+from ladrc_follow.control.cap_table import table_yaml
 import numpy as np
 
-from .calibration import COLUMNS, CalibrationError, Phase, SweepMotion, SweepRecord
+from .calibration import COLUMNS, Phase, SweepMotion, SweepRecord
 from .calibration_table import Calibration
 
 
@@ -149,13 +149,3 @@ def table_meta(motion: SweepMotion, record: SweepRecord, source: str) -> dict[st
             'contact': record.contact_kind,
             'contact_position_mm': record.contact_position_mm,
             'start_position_mm': record.start_position_mm}
-
-
-def check_table_file(path: str | Path, limits: TableLimits | None = None) -> RawToGap:
-    """Load a table file as the follow node does; :class:`CalibrationError` with reasons."""
-    from ladrc_follow.control.cap_table import load_table
-
-    try:
-        return load_table(path, limits or TableLimits())
-    except TableError as exc:
-        raise CalibrationError('; '.join(exc.reasons)) from None

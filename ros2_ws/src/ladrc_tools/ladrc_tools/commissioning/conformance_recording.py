@@ -136,17 +136,6 @@ class FeedbackSamples(Samples):
         self.fault_reason = [str(r) for r in self.fault_reason]
 
 
-def empty_gap() -> GapSamples:
-    """Return a topic with no sample (nothing received)."""
-    return GapSamples(recv_ns=[], stamp_ns=[], seq=[], gap_mm=[], valid=[], status=[])
-
-
-def empty_feedback() -> FeedbackSamples:
-    """Return a topic with no sample (nothing received)."""
-    return FeedbackSamples(recv_ns=[], stamp_ns=[], seq=[], position_mm=[], velocity_mm_s=[],
-                           drive_enabled=[], drive_fault=[], fault_reason=[])
-
-
 @dataclass(frozen=True)
 class Segment:
     """One part of the run: what the prober commanded from ``start_ns`` to ``end_ns``.

@@ -132,11 +132,6 @@ def _summary(report: dict[str, Any]) -> list[str]:
     return lines
 
 
-def page(data: ZoomData, report: dict[str, Any], states: list[str]) -> str:
-    """Return the HTML text of the page."""
-    return ''.join(page_parts(data, report, states))
-
-
 def page_parts(data: ZoomData, report: dict[str, Any], states: list[str]) -> Iterator[str]:
     """Yield the page's text in parts (written one after the other: no copy of the whole)."""
     streams, table, time, curves = _streams(data)

@@ -97,16 +97,6 @@ class ZoomData:
     aux_level: int = 0
     factor: int = FACTOR
 
-    def stream_bytes(self) -> dict[str, int]:
-        """Return the compressed size of each curve's streams (and the time's), in bytes."""
-        out = {'t_s': len(self.time)}
-        for key, sc in self.curves.items():
-            total = 0
-            for s in sc.streams.values():
-                total += sum(len(b) for b in s) if isinstance(s, list) else len(s)
-            out[key] = total
-        return out
-
 
 class ZoomRecorder:
     """Feed it the report's plot series a slice at a time (:meth:`add`); :meth:`finish`.
