@@ -49,7 +49,7 @@ def software_version() -> str:
 
 
 def utc_iso(t: dt.datetime | None = None) -> str:
-    """Return ``t`` (default: now) as ISO 8601 UTC with seconds, e.g. ``2026-12-04T08:00:00Z``."""
+    """Return ``t`` (default: now) as ISO 8601 UTC with seconds, ``YYYY-MM-DDThh:mm:ssZ``."""
     t = t or dt.datetime.now(dt.timezone.utc)
     return t.astimezone(dt.timezone.utc).strftime('%Y-%m-%dT%H:%M:%SZ')
 
