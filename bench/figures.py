@@ -17,8 +17,8 @@ README's short table (between the
 ``figures:begin`` and ``figures:end`` markers) is rendered from the same data. Docs that cite a
 figure link to its row (``docs/figures.md#<id>``) instead of restating it.
 
-``--quick``: the figures whose benches take seconds (a few minutes in all on this machine
-class); the full run takes hours (the fault matrix, the shift-long bags, the live benches).
+``--quick``: the figures whose benches take seconds; the full run takes hours (the fault
+matrix, the long bags, the live benches).
 A bench that fails or prints no JSON leaves its rows as they were and is named on stderr;
 the exit code is then 1.
 
