@@ -26,7 +26,7 @@ key (``sheet.profiles[1].freq_hz``) or the YAML line, and what is wrong.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, make_dataclass
 import importlib.resources
 import math
 from pathlib import Path
@@ -43,6 +43,7 @@ from ladrc_contract.schema import (
     as_mapping,
     coerce,
     load,
+    param,
     type_name,
 )
 import yaml
@@ -103,6 +104,18 @@ SIM_EVENTS: dict[str, dict[str, tuple]] = {
     'gas': {'on': (bool, REQUIRED, None, None)},
 }
 EVENTS = {**COMMANDS, **SIM_EVENTS}
+
+
+def _args_class(event: str, schema: dict[str, tuple]) -> type:
+    """Return the frozen dataclass of one event's arguments, declared from its table row."""
+    return make_dataclass(f'{event}_args', [
+        (k, typ, param(MISSING if default is REQUIRED else default, '', f'{event} {k}',
+                       ge=lo, le=hi, inf_ok=hi is None))
+        for k, (typ, default, lo, hi) in schema.items()], frozen=True, kw_only=True)
+
+
+_ARGS = {name: _args_class(name, schema) for name, schema in EVENTS.items()}
+"""Each event's arguments as a dataclass: the contract's loader reads them."""
 # AxisFeedback.fault_reason while a 'drive' event holds the drive faulted (sim node, bags)
 DRIVE_FAULT_REASON = 'drive fault (scenario event)'
 
@@ -201,30 +214,8 @@ def _event(data: Any, key: str, duration_s: float) -> Event:
     if name not in EVENTS:
         raise _fail(_join(key, 'do'), f'unknown event {name!r} (one of: {", ".join(EVENTS)})',
                     OUT_OF_RANGE)
-    schema = EVENTS[name]
-    args = {}
-    for k in data:
-        if k in ('t_s', 'do'):
-            continue
-        if k not in schema:
-            allowed = ', '.join(schema) or 'none'
-            raise _fail(_join(key, k), f'unknown argument of {name} (allowed: {allowed})',
-                        UNKNOWN_KEY)
-    for k, (typ, default, lo, hi) in schema.items():
-        sub = _join(key, k)
-        if k not in data:
-            if default is REQUIRED:
-                raise _fail(sub, f'missing required argument of {name}', MISSING_KEY)
-            args[k] = default
-            continue
-        v = coerce(data[k], typ, sub)
-        if typ is float and (math.isnan(v) or (lo is not None and v < lo)
-                             or (hi is not None and v > hi)):
-            lo_s = '-inf' if lo is None else lo
-            hi_s = 'inf' if hi is None else hi
-            raise _fail(sub, f'{v} out of range, must be within [{lo_s}, {hi_s}]',
-                        OUT_OF_RANGE)
-        args[k] = v
+    rest = {k: v for k, v in data.items() if k not in ('t_s', 'do')}
+    args = asdict(load(_ARGS[name], rest, where=key))
     if name == 'target_wave' and args['kind'] not in WAVE_KINDS:
         raise _fail(_join(key, 'kind'), f'{args["kind"]!r} is not one of '
                     f'{", ".join(WAVE_KINDS)}', OUT_OF_RANGE)
