@@ -408,8 +408,8 @@ def test_the_speed_bound_ignores_one_late_sample_and_stops_a_runaway(monkeypatch
     windows (persistence 0) aborts there. An axis at 12 mm/s is
     stopped within 10 + 2 ms + a sample.
     """
+    from ladrc_bringup import conform_node
     from ladrc_bringup.conform_node import SPEED_PERSIST_NS, SPEED_WINDOW_NS, SpeedGuard
-    from ladrc_tools.node import conform_node
 
     def feed(speed_mm_s, stall_at=None, n=400):
         guard = SpeedGuard(8.0)
