@@ -1,7 +1,7 @@
 """Capacitive calibration: the sweep to contact and the raw -> gap table.
 
 Pure (no rclpy). Three parts in three modules, each used by the node
-(``node/calibrate_node.py``), the ``ladrc calibrate`` command and the tests:
+(``ladrc_bringup/calibrate_node.py``), the ``ladrc calibrate`` command and the tests:
 
 1. :class:`SweepProcedure`, the motion, stepped once per 0.5 ms tick: from a start height
    (reading valid, and at least ``min_start_gap_mm`` where the driver publishes a gap) it
