@@ -36,9 +36,9 @@ import typing
 from typing import Any, Callable, Iterator
 
 __all__ = ['Spec', 'Entry', 'param', 'entries', 'field_problems', 'value_problems',
-           'first_problem', 'markdown_table', 'Section', 'load', 'coerce', 'as_mapping', 'LoadError',
-           'Problem', 'type_name', 'UNKNOWN_KEY', 'MISSING_KEY', 'NOT_MAPPING', 'WRONG_TYPE',
-           'OUT_OF_RANGE', 'INVALID']
+           'first_problem', 'markdown_table', 'Section', 'load', 'coerce', 'as_mapping',
+           'LoadError', 'Problem', 'type_name', 'UNKNOWN_KEY', 'MISSING_KEY', 'NOT_MAPPING',
+           'WRONG_TYPE', 'OUT_OF_RANGE', 'INVALID']
 
 
 @dataclass(frozen=True)
