@@ -39,7 +39,6 @@ from __future__ import annotations
 from collections import deque
 import json
 from pathlib import Path
-import signal
 import struct
 import sys
 import threading
@@ -47,7 +46,7 @@ import time
 from typing import Any
 
 from ladrc_contract import qos
-from ladrc_contract.exit_signals import ignore_stop_signals
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 from ladrc_contract.qos import TOPIC_QOS, to_rclpy
 from ladrc_contract.topics import PARAMETERS_TOPIC, SEQ_FIELD, TOPIC_TYPES
 
@@ -78,7 +77,8 @@ def _qos_profile(topic: str, reliable: bool = False) -> Any:
     return to_rclpy(qos.LOCKSTEP_HIGH_RATE if reliable else qos.RECORDER_READER)
 
 
-def _msg_class(msgtype: str) -> Any:
+def msg_class(msgtype: str) -> Any:
+    """Return the rclpy message class of ``msgtype`` ('pkg/msg/Name')."""
     import importlib
 
     pkg, _, name = msgtype.split('/')
@@ -241,86 +241,81 @@ def take_batch(readers: dict[str, Any]) -> list[tuple[int, str, bytes]]:
     return batch
 
 
-def main(args: list[str] | None = None) -> int:
-    """Run the recorder node until SIGINT/SIGTERM; print the JSON summary."""
+def _make_node():
     from ladrc_contract.loop_io import LoopNode
+
+    return LoopNode('recorder')
+
+
+def _close(recorder: Recorder) -> None:
+    print(json.dumps(recorder.close()), flush=True)
+
+
+def _run(node, node_run: NodeRun) -> int:
+    """Record the contract's topics until a stop is requested, then a grace; 0."""
     from ladrc_contract.service_thread import ServiceThread
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = LoopNode('recorder')
-    recorder = services = None
+    output = node.declare_parameter('output', '').value or time.strftime(
+        'bags/run_%Y%m%d_%H%M%S')
+    storage = node.declare_parameter('storage', 'mcap').value
+    split_s = float(node.declare_parameter('split_s', 0.0).value)
+    flush_s = float(node.declare_parameter('flush_s', 0.25).value)
+    compression = node.declare_parameter('compression', 'zstd').value
+    queue_max = int(node.declare_parameter('queue_max', 200_000).value)
+    grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
+    machine_id = str(node.declare_parameter('machine_id', '').value)
+    reliable = bool(node.declare_parameter('reliable', False).value)
+    poll_s = float(node.declare_parameter('poll_s', 0.005).value)
+    only = [t.strip('/') for t in node.declare_parameter('topics', ['']).value if t]
+    unknown = sorted(set(only) - {t.strip('/') for t in TOPIC_TYPES})
+    if unknown:
+        raise StartError(f'not contract topics: {", ".join(unknown)}')
+    wanted = {t: m for t, m in TOPIC_TYPES.items() if not only or t.strip('/') in only}
+    # bag time = receive time on the node clock, as ros2 bag: the middleware's reception
+    # stamp (system clock), or the node clock at the take with use_sim_time
+    sim_clock = node.get_clock() if node.get_parameter('use_sim_time').value else None
+    readers = {topic: node.create_loop_reader(msg_class(msgtype), topic,
+                                              _qos_profile(topic, reliable))
+               for topic, msgtype in wanted.items()}
     try:
-        output = node.declare_parameter('output', '').value or time.strftime(
-            'bags/run_%Y%m%d_%H%M%S')
-        storage = node.declare_parameter('storage', 'mcap').value
-        split_s = float(node.declare_parameter('split_s', 0.0).value)
-        flush_s = float(node.declare_parameter('flush_s', 0.25).value)
-        compression = node.declare_parameter('compression', 'zstd').value
-        queue_max = int(node.declare_parameter('queue_max', 200_000).value)
-        grace_s = float(node.declare_parameter('stop_grace_s', 0.5).value)
-        machine_id = str(node.declare_parameter('machine_id', '').value)
-        reliable = bool(node.declare_parameter('reliable', False).value)
-        poll_s = float(node.declare_parameter('poll_s', 0.005).value)
-        only = [t.strip('/') for t in node.declare_parameter('topics', ['']).value if t]
-        unknown = sorted(set(only) - {t.strip('/') for t in TOPIC_TYPES})
-        if unknown:
-            print(f'recorder: not contract topics: {", ".join(unknown)}', file=sys.stderr)
-            return 2
-        wanted = {t: m for t, m in TOPIC_TYPES.items() if not only or t.strip('/') in only}
-        # bag time = receive time on the node clock, as ros2 bag: the middleware's reception
-        # stamp (system clock), or the node clock at the take with use_sim_time
-        sim_clock = node.get_clock() if node.get_parameter('use_sim_time').value else None
-        readers = {topic: node.create_loop_reader(_msg_class(msgtype), topic,
-                                                  _qos_profile(topic, reliable))
-                   for topic, msgtype in wanted.items()}
-        try:
-            recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
-                                topics={t: r.topic_name for t, r in readers.items()},
-                                machine_id=machine_id)
-        except (BagError, ValueError, TypeError) as exc:
-            print(f'recorder: {exc}', file=sys.stderr)
-            return 2
-        diag = _Diagnostics(node, recorder)
-        node.create_timer(1.0, diag.publish)
-        services = ServiceThread(node.context, (node,))  # /diagnostics, parameters
-        services.start()
-        node.get_logger().info(f'recording to {output} ({storage})')
+        recorder = Recorder(output, storage, split_s, flush_s, compression, queue_max,
+                            topics={t: r.topic_name for t, r in readers.items()},
+                            machine_id=machine_id)
+    except (BagError, ValueError, TypeError) as exc:
+        raise StartError(str(exc)) from None
+    node_run.defer(_close, recorder)
+    diag = _Diagnostics(node, recorder)
+    node.create_timer(1.0, diag.publish)
+    services = ServiceThread(node.context, (node,))  # /diagnostics, parameters
+    node_run.defer(services.close)
+    services.start()
+    node.get_logger().info(f'recording to {output} ({storage})')
 
-        def record_until(done) -> None:
-            while True:  # a last take once done
-                finished = done()
-                batch = take_batch(readers)
-                now = sim_clock.now().nanoseconds if sim_clock is not None else None
-                for stamp, topic, data in batch:
-                    recorder.enqueue(topic, data, stamp if now is None else now)
-                if finished:
-                    return
-                time.sleep(poll_s)
+    def record_until(done) -> None:
+        while True:  # a last take once done
+            finished = done()
+            batch = take_batch(readers)
+            now = sim_clock.now().nanoseconds if sim_clock is not None else None
+            for stamp, topic, data in batch:
+                recorder.enqueue(topic, data, stamp if now is None else now)
+            if finished:
+                return
+            time.sleep(poll_s)
 
-        record_until(stop.is_set)
-        # interrupted together with the other nodes (launch's Ctrl-C): keep recording a moment,
-        # so the controller's zero command on its way down is in the bag
-        end = time.monotonic() + max(0.0, grace_s)
-        record_until(lambda: time.monotonic() >= end)
-    finally:
-        if services is not None:
-            services.close()
-        if recorder is not None:
-            summary = recorder.close()
-            print(json.dumps(summary), flush=True)
-        node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+    record_until(lambda: node_run.stop_requested)
+    # interrupted together with the other nodes (launch's Ctrl-C): keep recording a moment,
+    # so the controller's zero command on its way down is in the bag
+    end = time.monotonic() + max(0.0, grace_s)
+    record_until(lambda: time.monotonic() >= end)
     return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the recorder node until SIGINT/SIGTERM; print the JSON summary.
+
+    The recorder commands nothing: it has no zero hook; its bag is closed after the stop.
+    """
+    return run_node('recorder', _make_node, _run, args=args)
 
 
 if __name__ == '__main__':

@@ -26,6 +26,7 @@ import tempfile
 import time
 from typing import Any, Mapping
 
+from ladrc_contract.node_entry import take_stop_signals
 from ladrc_contract.run_log import verdict
 
 
@@ -548,20 +549,14 @@ def main(argv: list[str] | None = None) -> int:
         specs.insert(0, view_spec(args.view_port))
     env = isolated_env(args.domain_id)
     up = Bringup(specs, env, Path(args.logs) if args.logs else None)
-    interrupted = [False]
-
-    def _interrupt(_signum, _frame):
-        interrupted[0] = True
-
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    stop = take_stop_signals()  # SIGINT/SIGTERM: the nodes are stopped, the run reported
     print(f'bringup: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} '
           + (f'job={args.job}' if args.job else f'scenario={args.scenario}')
           + (f' drive=cia402 bus={bus}' if args.drive else ''), file=sys.stderr)
     try:
         up.start()
         deadline = time.monotonic() + args.timeout
-        while not interrupted[0] and time.monotonic() < deadline:
+        while not stop.stop_requested and time.monotonic() < deadline:
             if up.wait('ladrc_sim', 0.2) is not None:
                 break
             # the CNC node ends when its job has (exit 0); the sim node follows it at once

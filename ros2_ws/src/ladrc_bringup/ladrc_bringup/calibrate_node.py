@@ -33,13 +33,12 @@ import json
 import math
 from pathlib import Path
 import secrets
-import signal
 import sys
 import time
 from typing import Any, NamedTuple
 
 from ladrc_contract import qos
-from ladrc_contract.exit_signals import ignore_stop_signals
+from ladrc_contract.node_entry import NodeRun, StartError, run_node, stop_signals
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
 from ladrc_follow.node.samples import sim_time_s
@@ -350,16 +349,16 @@ class CalibrateNode(Node):
             rec.contact_position_mm = contact
 
 
-def run_loop(node: CalibrateNode, executor, running: list[bool], until_done: bool = False
+def run_loop(node: CalibrateNode, executor, run: NodeRun, until_done: bool = False
              ) -> None:
     """Serve callbacks; tick at 2 kHz while a sweep runs; process it when its motion ends."""
     if node.lockstep:
-        run_lockstep(node, executor, running, until_done)
+        run_lockstep(node, executor, run, until_done)
         return
     period = node.period_ns
     mono = time.monotonic_ns
     next_ns = mono()
-    while running[0]:
+    while not run.stop_requested:
         if not node.active:
             if until_done and node.last_result is not None:
                 return
@@ -387,9 +386,9 @@ def run_loop(node: CalibrateNode, executor, running: list[bool], until_done: boo
                 return
 
 
-def run_lockstep(node: CalibrateNode, executor, running: list[bool], until_done: bool) -> None:
+def run_lockstep(node: CalibrateNode, executor, run: NodeRun, until_done: bool) -> None:
     """Lock step: one tick per step of the sim; every step answered (zero when idle)."""
-    while running[0]:
+    while not run.stop_requested:
         if not node.step_ready():
             try:
                 executor.spin_once(timeout_sec=0.05)
@@ -472,12 +471,12 @@ def _start_sim(sim: SimOptions, motion: dict[str, float], lockstep: bool
     return proc, tmp
 
 
-def _start_sweep(node: CalibrateNode, executor, running: list[bool], output: str,
+def _start_sweep(node: CalibrateNode, executor, run: NodeRun, output: str,
                  wait_s: float) -> None:
     """Wait for the driver's samples (at most ``wait_s``) and start the sweep, or raise."""
     deadline = time.monotonic() + wait_s
     accepted, message = False, f'no samples from the driver within {wait_s:g} s'
-    while running[0] and time.monotonic() < deadline:
+    while not run.stop_requested and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
         if node.lockstep and node.step_ready():
             # lock step: the sim (and a driver waiting for its controller) moves on only when
@@ -494,7 +493,7 @@ def _start_sweep(node: CalibrateNode, executor, running: list[bool], output: str
             accepted, message = node.start(output)
             if accepted or 'no recent samples' not in message:
                 break
-    if not running[0]:
+    if run.stop_requested:
         raise KeyboardInterrupt
     if not accepted:
         raise CalibrationError(message)
@@ -517,88 +516,74 @@ def run_calibration(output: str, motion: dict[str, float], sim: SimOptions | Non
     if reasons:
         raise CalibrationError('; '.join(reasons))
     sim_proc, tmp = _start_sim(sim, values, lockstep) if sim is not None else (None, None)
-    running = [True]
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-
-    def _stop(_signum, _frame):
-        running[0] = False
-
-    context = rclpy.Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
     try:
-        for s in old:
-            signal.signal(s, _stop)
-        # sim/truth: only a simulator publishes it (the error against the true gap)
-        overrides = {**values, 'truth_topic': 'sim/truth', 'source': 'sim' if sim else 'driver',
-                     'lockstep': lockstep}
-        node = CalibrateNode(context=context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in overrides.items()])
-        executor = EventsExecutor(context=context)
-        executor.add_node(node)
-        apply_realtime(0 if lockstep else int(node.get_parameter('thread_priority').value), [],
-                       bool(node.get_parameter('lock_memory').value))
-        _start_sweep(node, executor, running, output, wait_s)
-        run_loop(node, executor, running, until_done=True)
-        if not running[0]:
-            stop_commanding(node, 'interrupted')
-            raise KeyboardInterrupt
-        result = node.last_result or {}
-        if not result.get('output'):
-            raise CalibrationError(result.get('reason') or 'the sweep did not finish')
-        executor.shutdown()
-        return result
+        with stop_signals() as run:
+            context = rclpy.Context()
+            rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+            node = None
+            try:
+                # sim/truth: only a simulator publishes it (the error against the true gap)
+                overrides = {**values, 'truth_topic': 'sim/truth',
+                             'source': 'sim' if sim else 'driver', 'lockstep': lockstep}
+                node = CalibrateNode(context=context, parameter_overrides=[
+                    Parameter(k, value=v) for k, v in overrides.items()])
+                executor = EventsExecutor(context=context)
+                executor.add_node(node)
+                apply_realtime(0 if lockstep
+                               else int(node.get_parameter('thread_priority').value), [],
+                               bool(node.get_parameter('lock_memory').value))
+                _start_sweep(node, executor, run, output, wait_s)
+                run_loop(node, executor, run, until_done=True)
+                if run.stop_requested:
+                    stop_commanding(node, 'interrupted')
+                    raise KeyboardInterrupt
+                result = node.last_result or {}
+                if not result.get('output'):
+                    raise CalibrationError(result.get('reason') or 'the sweep did not finish')
+                executor.shutdown()
+                return result
+            finally:
+                if node is not None:
+                    stop_commanding(node, 'calibration ended')
+                    node.destroy_node()
+                rclpy.try_shutdown(context=context)
     finally:
-        if node is not None:
-            stop_commanding(node, 'calibration ended')
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        for s, handler in old.items():
-            signal.signal(s, handler)
         if sim_proc is not None:
             interrupt_process(sim_proc, 10.0)
         if tmp is not None:
             tmp.cleanup()
 
+def _make_node() -> CalibrateNode:
+    try:
+        return CalibrateNode()
+    except ValueError as exc:
+        raise StartError(f'invalid parameters: {exc}') from None
+
+
+def _run(node: CalibrateNode, run: NodeRun) -> int:
+    """Serve sweep requests until a stop is requested; 0."""
+    from rclpy.experimental import EventsExecutor
+
+    executor = EventsExecutor(context=node.context)
+    executor.add_node(node)
+    run.defer(executor.shutdown)
+    # lock step: no SCHED_FIFO (ladrc_follow's follow_node._run says why)
+    _, warnings = apply_realtime(0 if node.lockstep
+                                 else int(node.get_parameter('thread_priority').value), [],
+                                 bool(node.get_parameter('lock_memory').value))
+    for text in warnings:
+        node.get_logger().warning(text)
+    run_loop(node, executor, run)
+    return 0
+
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: ``ros2 run ladrc_bringup calibrate_node [--ros-args -p descent_mm_s:=0.5]``."""
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    running = [True]
+    """Entry point: ``ros2 run ladrc_bringup calibrate_node [--ros-args -p descent_mm_s:=0.5]``.
 
-    def _stop(_signum, _frame):
-        running[0] = False
-
-    signal.signal(signal.SIGINT, _stop)
-    signal.signal(signal.SIGTERM, _stop)
-    node = None
-    try:
-        try:
-            node = CalibrateNode()
-        except ValueError as exc:
-            print(f'calibrate_node: invalid parameters: {exc}', file=sys.stderr)
-            return 2
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=node.context)
-        executor.add_node(node)
-        # lock step: no SCHED_FIFO (ladrc_follow's follow_node.main says why)
-        _, warnings = apply_realtime(0 if node.lockstep
-                                     else int(node.get_parameter('thread_priority').value), [],
-                                     bool(node.get_parameter('lock_memory').value))
-        for text in warnings:
-            node.get_logger().warning(text)
-        try:
-            run_loop(node, executor, running)
-        finally:
-            stop_commanding(node, 'calibration node stopped')
-        executor.shutdown()
-        return 0
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+    Every path ends with the sweep aborted and zero velocity, enable false (its zero hook).
+    """
+    return run_node('calibrate_node', _make_node, _run, args=argv,
+                    zero=lambda node, _reason: stop_commanding(node, 'calibration node stopped'))
 
 
 if __name__ == '__main__':

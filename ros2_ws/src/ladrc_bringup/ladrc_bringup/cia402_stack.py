@@ -16,9 +16,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-import signal
 import sys
 import time
+
+from ladrc_contract.node_entry import take_stop_signals
 
 from .bringup import Bringup, NodeSpec, bus_interface, emulated_drive_device
 
@@ -60,13 +61,7 @@ def main(argv: list[str] | None = None) -> int:
                     '[the shipped drive]')
     ap.add_argument('--logs', default=None, help="folder for the processes' output")
     a = ap.parse_args(argv)
-    stop = [False]
-
-    def _stop(_signum, _frame):
-        stop[0] = True
-
-    signal.signal(signal.SIGINT, _stop)
-    signal.signal(signal.SIGTERM, _stop)
+    stop = take_stop_signals()  # SIGINT/SIGTERM: the nodes are stopped, the run reported
     logs = Path(a.logs) if a.logs else None
     server = None
     if not a.bus:
@@ -88,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     try:
         up.start()
-        while not stop[0]:
+        while not stop.stop_requested:
             gone = {n: p.returncode for n, p in up.procs.items() if p.poll() is not None}
             if gone:
                 print('cia402_stack: exited early: '

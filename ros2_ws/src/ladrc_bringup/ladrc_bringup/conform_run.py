@@ -13,11 +13,11 @@ import json
 import os
 from pathlib import Path
 import shlex
-import signal
 import subprocess
 import sys
 from typing import Callable
 
+from ladrc_contract.node_entry import stop_signals
 from ladrc_tools.commissioning.conformance import (
     ConformanceResult,
     Plan,
@@ -150,25 +150,14 @@ def run_conform(opts: ConformOptions, log: Callable[[str], None] | None = None
             env['ROS_DOMAIN_ID'] = os.environ['ROS_DOMAIN_ID'] = str(opts.domain_id)
     domain = int(env.get('ROS_DOMAIN_ID', '0') or 0)
     # SIGINT and SIGTERM both end the run through the same path: zero with enable=false, the
-    # driver stopped, nothing written (a background job may even have SIGINT ignored)
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # driver stopped, nothing written (a background job may even have SIGINT ignored). The
+    # first one only: the clean-up that follows (zero commands, stopping the driver) must not
+    # be cut. Only a flag here, raised at the probe's next poll: raising from the handler could
+    # land inside a C extension call (rclpy's deserialize_message turning it into a TypeError)
     SIGNALLED.clear()
-    for sig in previous:
-        signal.signal(sig, _interrupt)
-    try:
+    with stop_signals() as stop:
+        stop.on_stop(lambda: SIGNALLED.append(stop.stop_reason))
         return _run(opts, log, out, env, domain)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-def _interrupt(signum: int, frame) -> None:
-    # once: the clean-up that follows (zero commands, stopping the driver) must not be cut.
-    # Only a flag here: raising from the handler could land inside a C extension call (seen:
-    # rclpy's deserialize_message turning it into a TypeError), not in the clean-up's path
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.SIG_IGN)
-    SIGNALLED.append(signal.Signals(signum).name)
 
 
 def _run(opts: ConformOptions, log: Callable[[str], None], out: Path, env: dict[str, str],

@@ -3,21 +3,23 @@
 A node's ``main`` is :func:`run_node`::
 
     def main(argv=None) -> int:
-        return run_node('follow_node', FollowNode, run_follow, args=argv, zero=publish_zeros)
+        return run_node('follow_node', make_node, run, args=argv, zero=publish_zero)
 
 :func:`run_node` does, in this order:
 
 1. installs the SIGINT/SIGTERM handlers (before anything else: a stop signal during the start
    is not lost); a stop signal only sets :attr:`NodeRun.stop_requested` and calls the hooks of
    :meth:`NodeRun.on_stop`, so the node still has a valid ROS context for its zero command
-   (rclpy's own handlers shut the context down first: ``SignalHandlerOptions.NO``);
+   (rclpy's own handlers would shut the context down at once: ``SignalHandlerOptions.NO``);
 2. ``check_args(args)`` (a problem: one line, exit 2), ``rclpy.init(args=args)``;
 3. builds the node with ``make_node()``; any exception there is one line on stderr, exit
    :data:`EXIT_CONFIG` (2), no traceback (:class:`StartError` carries its own line);
 4. ``run(node, node_run)`` -> exit code (``None``: 0); the default :func:`spin` runs the
-   node's callbacks until a stop signal. A :class:`StartError` in ``run``: its line, exit 2;
-   ``ExternalShutdownException``: a stop (reason ``external shutdown``), exit 0; any other
-   exception: one line ``NAME: stopped by TYPE: TEXT``, exit :data:`EXIT_FAILED` (1);
+   node's callbacks until a stop signal; a node's own real-time loop runs in ``run``, on the
+   main thread, and reads ``node_run.stop_requested`` (a plain attribute) each iteration.
+   A :class:`StartError` in ``run``: its line, exit 2; ``ExternalShutdownException``: a stop
+   (reason ``external shutdown``), exit 0; any other exception: one line
+   ``NAME: stopped by TYPE: TEXT``, exit :data:`EXIT_FAILED` (1);
 5. however 4 ended, while the context is still valid: ``zero(node, reason)`` (the node's zero
    command), then the clean-ups of :meth:`NodeRun.defer` (last first), then
    ``node.destroy_node()``, ``rclpy.try_shutdown()``;
@@ -25,9 +27,11 @@ A node's ``main`` is :func:`run_node`::
 
 Exit codes: 0 the run ended (by itself, or stopped by SIGINT/SIGTERM after its zero command:
 the bring-up stops every node that way at the end of a run); 1 the node failed while running;
-2 bad configuration or arguments, nothing ran; a node's own codes (3: lock step aborted) from
-its ``run``. Processes that are no nodes (a supervisor, a worker, a bus emulator) take their
-stop signals through :func:`stop_signals` and :func:`ignore_stop_signals`.
+2 bad configuration or arguments (the node's work did not start); a node's own codes (3: lock
+step aborted) from its ``run``. Processes that are no nodes take their stop signals here too: a
+supervisor's ``main`` through :func:`take_stop_signals`, a run inside a command (a sweep, a
+conformance run, the bus emulator) through :func:`stop_signals`, a worker through
+:func:`ignore_stop_signals`.
 """
 
 from __future__ import annotations
@@ -72,15 +76,16 @@ class NodeRun:
         self._deferred: list[tuple[Callable[..., Any], tuple]] = []
 
     def request_stop(self, reason: str) -> None:
-        """Ask the run to stop (a stop signal calls this); the first reason stays."""
-        if not self.stop_requested:
-            self.stop_reason = reason
-            self.stop_requested = True
+        """Ask the run to stop (a stop signal calls this); only the first request counts."""
+        if self.stop_requested:
+            return
+        self.stop_reason = reason
+        self.stop_requested = True
         for hook in self._hooks:
             hook()
 
     def on_stop(self, hook: Callable[[], Any]) -> None:
-        """Call ``hook()`` on a stop request (in the signal handler: set a flag, nothing more).
+        """Call ``hook()`` once, at the stop request (in the signal handler: set a flag).
 
         Called at once when the stop was requested already.
         """
@@ -146,8 +151,7 @@ def run_node(name: str, make_node: Callable[[], N],
     ``zero(node, reason)`` sends the node's zero / safe command, on every path once the node
     exists.
     """
-    node_run = NodeRun()
-    _install(node_run)
+    node_run = take_stop_signals()
     try:
         return _run(name, make_node, run, args, check_args, zero, node_run)
     finally:
@@ -212,6 +216,15 @@ def _install(node_run: NodeRun) -> dict:
         node_run.request_stop(signal.Signals(signum).name)
 
     return {sig: signal.signal(sig, _handler) for sig in STOP_SIGNALS}
+
+
+def take_stop_signals() -> NodeRun:
+    """From here to the process's end, SIGINT and SIGTERM request the returned run's stop.
+
+    A process's ``main`` that is no node (a bring-up supervisor) polls ``stop_requested``.
+    """
+    _install(run := NodeRun())
+    return run
 
 
 @contextlib.contextmanager

@@ -48,13 +48,12 @@ from collections import deque
 from dataclasses import dataclass
 import ipaddress
 import json
-import signal
 import sys
 import threading
 import time
 from typing import Any
 
-from ladrc_contract.exit_signals import ignore_stop_signals
+from ladrc_contract.node_entry import NodeRun, StartError, run_node
 import numpy as np
 
 from .view_channels import (
@@ -155,12 +154,11 @@ class LiveView:
     def __init__(self, node: Any, settings: ViewSettings) -> None:
         import foxglove
         from ladrc_bags.columns import CdrColumns
+        from ladrc_bags.recorder_node import msg_class
         from ladrc_bags.typestore import ladrc_typestore
         from ladrc_contract import qos
         from ladrc_contract.qos import to_rclpy
         from ladrc_contract.services import FOLLOW_SERVICES, service_class
-
-        from .recorder_node import _msg_class
 
         self.node, self.settings = node, settings
         self.context = foxglove.Context()
@@ -168,11 +166,11 @@ class LiveView:
         self.views = {v.topic: v for v in VIEWS}
         # the 2 kHz topics best effort with the recorder's deep history (5 s): the publishers
         # never wait for this reader, and a stalled view loses nothing it could show
-        self.readers = {v.topic: node.create_loop_reader(_msg_class(v.msgtype), v.topic,
+        self.readers = {v.topic: node.create_loop_reader(msg_class(v.msgtype), v.topic,
                                                          to_rclpy(qos.RECORDER_READER))
                         for v in VIEWS}
         self.readers[EVENTS_TOPIC] = node.create_loop_reader(
-            _msg_class(EVENTS_TYPE), EVENTS_TOPIC, to_rclpy(qos.EVENTS))
+            msg_class(EVENTS_TYPE), EVENTS_TOPIC, to_rclpy(qos.EVENTS))
         self.columns = {v.topic: CdrColumns(v.msgtype, store) for v in VIEWS}
         self.columns[EVENTS_TOPIC] = CdrColumns(EVENTS_TYPE, store)
         self.event_fields = [f for f, _ in self.columns[EVENTS_TOPIC].fields]
@@ -366,84 +364,73 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
     return ap.parse_args(remove_ros_args(argv)[1:])
 
 
-def main(args: list[str] | None = None) -> int:
-    """Run the view node until SIGINT/SIGTERM."""
-    from ladrc_contract.loop_io import LoopNode
-    import rclpy
+def _run(node, node_run: NodeRun, cli: argparse.Namespace) -> int:
+    """Serve the live view until a stop is requested; print its summary; 0."""
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
 
-    argv = list(sys.argv if args is None else args)
-    cli = _arguments(argv)
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
+    settings = ViewSettings(
+        host=str(node.declare_parameter('host', cli.host).value),
+        port=int(node.declare_parameter('port', cli.port).value),
+        display_rate_hz=float(node.declare_parameter('display_rate_hz', cli.rate_hz).value),
+        service_timeout_s=float(node.declare_parameter('service_timeout_s', 5.0).value))
+    problem = settings.check()
+    if problem:
+        raise StartError(problem)
+    import foxglove
+    from foxglove.websocket import Capability
 
-    def on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = LoopNode(NAME)
-    server = view = executor = None
-    thread = None
+    view = LiveView(node, settings)
     try:
-        settings = ViewSettings(
-            host=str(node.declare_parameter('host', cli.host).value),
-            port=int(node.declare_parameter('port', cli.port).value),
-            display_rate_hz=float(node.declare_parameter('display_rate_hz', cli.rate_hz).value),
-            service_timeout_s=float(node.declare_parameter('service_timeout_s', 5.0).value))
-        problem = settings.check()
-        if problem:
-            print(f'view_node: {problem}', file=sys.stderr)
-            return 2
-        import foxglove
-        from foxglove.websocket import Capability
+        server = foxglove.start_server(
+            name='ladrc live view', host=settings.host, port=settings.port,
+            capabilities=[Capability.Services], supported_encodings=['json'],
+            services=view.services, context=view.context, server_listener=view)
+    except Exception as exc:  # the port in use, an address not on this machine
+        why = ' '.join(str(exc).split()).removeprefix('FoxgloveError: ')
+        raise StartError(f'cannot listen on {settings.host}:{settings.port}: {why}') from None
+    executor = thread = None
 
-        view = LiveView(node, settings)
-        try:
-            server = foxglove.start_server(
-                name='ladrc live view', host=settings.host, port=settings.port,
-                capabilities=[Capability.Services], supported_encodings=['json'],
-                services=view.services, context=view.context, server_listener=view)
-        except Exception as exc:  # the port in use, an address not on this machine
-            why = ' '.join(str(exc).split()).removeprefix('FoxgloveError: ')
-            print(f'view_node: cannot listen on {settings.host}:{settings.port}: {why}',
-                  file=sys.stderr)
-            return 2
-        if not ipaddress.ip_address(settings.host).is_loopback:
-            node.get_logger().warning(f'listening on {settings.host}: reachable from the '
-                                      'network (host parameter); the default is 127.0.0.1')
-        print(f'view_node: serving ws://{settings.host}:{server.port} '
-              f'(display {settings.display_rate_hz:g} Hz)', file=sys.stderr, flush=True)
-        executor = SingleThreadedExecutor(context=node.context)  # the service clients
-        executor.add_node(node)
-
-        def spin() -> None:
-            try:
-                executor.spin()
-            except ExternalShutdownException:
-                pass
-
-        thread = threading.Thread(target=spin, name='clients', daemon=True)
-        thread.start()
-        poll_s = min(0.01, 0.5 * settings.interval_ns * 1e-9)
-        while not stop.is_set():
-            view.poll()
-            stop.wait(poll_s)
-        view.poll()
-    finally:
-        if server is not None:
-            server.stop()
+    def _end() -> None:
+        server.stop()
         if executor is not None:
             executor.shutdown(timeout_sec=1.0)
         if thread is not None:
             thread.join(timeout=2.0)
-        if view is not None and server is not None:
-            print(json.dumps(view.summary()), flush=True)
-        node.destroy_node()
-        rclpy.try_shutdown()
-        ignore_stop_signals()  # ladrc_contract.exit_signals
+        print(json.dumps(view.summary()), flush=True)
+
+    node_run.defer(_end)
+    if not ipaddress.ip_address(settings.host).is_loopback:
+        node.get_logger().warning(f'listening on {settings.host}: reachable from the '
+                                  'network (host parameter); the default is 127.0.0.1')
+    print(f'view_node: serving ws://{settings.host}:{server.port} '
+          f'(display {settings.display_rate_hz:g} Hz)', file=sys.stderr, flush=True)
+    executor = SingleThreadedExecutor(context=node.context)  # the service clients
+    executor.add_node(node)
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    thread = threading.Thread(target=spin, name='clients', daemon=True)
+    thread.start()
+    poll_s = min(0.01, 0.5 * settings.interval_ns * 1e-9)
+    while not node_run.stop_requested:
+        view.poll()
+        node_run.wait(poll_s)
+    view.poll()
     return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the view node until SIGINT/SIGTERM (it commands nothing: no zero hook)."""
+    from ladrc_contract.loop_io import LoopNode
+
+    argv = list(sys.argv if args is None else args)
+    cli = _arguments(argv)
+    return run_node('view_node', lambda: LoopNode(NAME),
+                    lambda node, node_run: _run(node, node_run, cli), args=argv)
 
 
 if __name__ == '__main__':
