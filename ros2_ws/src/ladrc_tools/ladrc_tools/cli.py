@@ -89,10 +89,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f'{self.prog}: {message}\n')
 
 
-def commands() -> dict[str, Command]:
-    """Return :data:`COMMANDS` and the registered subcommands (group ``ladrc.commands``)."""
+def commands(only: str | None = None) -> dict[str, Command]:
+    """Return :data:`COMMANDS` and the registered subcommands (group ``ladrc.commands``).
+
+    ``only``: the subcommand about to run; when it is one, no other registered one is imported.
+    """
     found = dict(COMMANDS)
-    for ep in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
+    if only in found:
+        return found
+    registered = sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name)
+    if any(ep.name == only for ep in registered):
+        registered = [ep for ep in registered if ep.name == only]
+    for ep in registered:
         found.setdefault(ep.name, Command(*ep.load()))
     return found
 
@@ -114,7 +122,8 @@ def build_parser(table: dict[str, Command] | None = None) -> argparse.ArgumentPa
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ladrc`` console script."""
-    table = commands()
+    words = sys.argv[1:] if argv is None else argv
+    table = commands(words[0] if words and not words[0].startswith('-') else None)
     args = build_parser(table).parse_args(argv)
     try:
         return table[args.command].run(args)
