@@ -54,6 +54,7 @@ import tempfile
 import time
 from typing import Any
 
+from ladrc_contract.node_entry import take_stop_signals
 from ladrc_contract.run_log import verdict as run_verdict
 import yaml
 
@@ -325,13 +326,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
     specs.append(bridge_spec(job, lc.socket_path))
     specs[-1].parameters.update(allowance['bridge'])
     env = isolated_env(args.domain_id)
-    interrupted = [False]
-
-    def _interrupt(_signum, _frame):
-        interrupted[0] = True
-
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    stop = take_stop_signals()  # SIGINT/SIGTERM: the nodes are stopped, the run reported
     print(f'bringup: ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]} job={job.name} cnc=linuxcnc '
           f'allowance={allowance["file"]}', file=sys.stderr)
     up = Bringup(specs, env, log_dir)
@@ -356,7 +351,7 @@ def main_linuxcnc(args: argparse.Namespace) -> int:
         t_run: float | None = None
         fault_done = False
         end_at: float | None = None
-        while not interrupted[0] and time.monotonic() < deadline:
+        while not stop.stop_requested and time.monotonic() < deadline:
             if up.wait('ladrc_sim', 0.2) is not None:
                 break
             if end_at is not None and time.monotonic() > end_at:
