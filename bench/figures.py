@@ -598,8 +598,8 @@ def command(f: Figure) -> str:
 
 
 def _cell(text: str) -> str:
-    """Return ``text`` fit for a Markdown table cell (its pipes escaped)."""
-    return text.replace('|', '\\|')
+    """Return ``text`` fit for a Markdown table cell (pipes escaped, lines joined)."""
+    return ' '.join(text.split('\n')).replace('|', '\\|')
 
 
 def measured(row: dict) -> str:
