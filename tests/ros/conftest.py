@@ -21,8 +21,8 @@ if importlib.util.find_spec('rclpy') is None:
 # Domain ids 1..101 for tests (0 is the default users run on; 102+ may collide with ports of
 # other tools). Set before any rclpy.init so every context and child process uses them.
 # scripts/run-tests gives its pytest runs disjoint ranges (LADRC_TEST_DOMAIN_BASE and _SPAN: lane 1
-# 1-50, the lock-step chain beside lane 2 51-75, lane 2's own ROS tests 76-100; formerly 50
-# ids each) so two pytest runs of one `make test` never share a domain.
+# 1-50, lane 2's two lock-step steps 51-75 and 76-100) so two pytest runs of one `make test`
+# never share a domain.
 _BASE = int(os.environ.get('LADRC_TEST_DOMAIN_BASE', '1'))
 _SPAN = int(os.environ.get('LADRC_TEST_DOMAIN_SPAN',
                            50 if 'LADRC_TEST_DOMAIN_BASE' in os.environ else 101))
