@@ -31,7 +31,8 @@ ATTEMPTS = 8
 seconds, safely). The budget's basis: under ``make test`` beside the other lane, with and
 without two busy loops, the sim drive's 20 ms watchdog (the allowance) stopped up to about half
 of these runs at their first pierce; with p = 0.5 the chance that 8 runs in a row are stopped
-is 0.4 %. Every stopped run is checked for safety and reported; any other end fails at once."""
+is 0.4 %. Every stopped run is checked for safety and reported; any other end fails at once.
+Each run is counted in .test-logs/attempts.log (docs/testing.md, "Runs started again")."""
 LINK_GUARDS = ('linuxcnc_late', 'linuxcnc_gone', 'controller_gone')
 """The bridge's link guards (ladrc_linuxcnc.sequence.ABORT_CODES) a stall can trip."""
 
