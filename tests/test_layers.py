@@ -45,7 +45,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     'ladrc_linuxcnc': frozenset({'ladrc_contract'}),
     'ladrc_follow': frozenset({'ladrc_contract'}),
     'ladrc_sim': frozenset({'ladrc_contract', 'ladrc_cia402'}),  # the emulated CiA 402 drive
-    'ladrc_bags': frozenset({'ladrc_contract', 'ladrc_sim'}),  # a headless run as a bag
+    'ladrc_bags': frozenset({'ladrc_contract'}),
     'ladrc_tools': frozenset({'ladrc_contract', 'ladrc_cia402', 'ladrc_follow', 'ladrc_sim',
                               'ladrc_bags'}),
     'ladrc_fleet': frozenset({'ladrc_contract', 'ladrc_follow', 'ladrc_sim', 'ladrc_bags',

@@ -148,8 +148,6 @@ def _series(result: Any) -> _Series:
 
 def _sample_rows(s: _Series, result: Any, store: Any) -> tuple[list[bytes], list[bytes]]:
     """Pack the capacitive height and the axis feedback of every tick, as the sim sends."""
-    from ladrc_sim.headless.scenario import DRIVE_FAULT_REASON
-
     frame = {'header.frame_id': FRAME_ID}
     # the raw value behind each reading, as the sim node sends it (models/sensor.py)
     raw_hz = result.raw_hz() if callable(getattr(result, 'raw_hz', None)) else np.nan
@@ -161,7 +159,8 @@ def _sample_rows(s: _Series, result: Any, store: Any) -> tuple[list[bytes], list
         RowPacker('ladrc_msgs/msg/AxisFeedback', store, frame), s.n, {
             'stamp_s': s.t, 'seq': s.enc_seq, 'position_mm': s.encoder,
             'velocity_mm_s': np.nan_to_num(enc_vel), 'drive_enabled': s.enabled,
-            'drive_fault': s.fault}, {'fault_reason': np.where(s.fault, DRIVE_FAULT_REASON, '')})
+            'drive_fault': s.fault},
+        {'fault_reason': np.where(s.fault, result.drive_fault_reason, '')})
     return cap_rows, fb_rows
 
 

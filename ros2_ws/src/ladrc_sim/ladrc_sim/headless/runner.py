@@ -33,7 +33,7 @@ import math
 from math import isnan
 from pathlib import Path
 import time
-from typing import Any, Mapping, Protocol, runtime_checkable
+from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
 
 from ladrc_contract.tick import TickInput
 import numpy as np
@@ -43,7 +43,7 @@ from ..models.encoder import Encoder, Glitch
 from ..models.sensor import Sensor, oscillator_hz
 from ..models.sheet import Sheet
 from .metrics import HOLD_S, TOL_MM, Metrics, compute_metrics
-from .scenario import Scenario, load_scenario
+from .scenario import DRIVE_FAULT_REASON, Scenario, load_scenario
 
 
 @runtime_checkable
@@ -91,6 +91,8 @@ class RunResult:
     def realtime_x(self) -> float:
         """Simulated time over wall-clock time of the loop."""
         return self.scenario.duration_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    drive_fault_reason: ClassVar[str] = DRIVE_FAULT_REASON  # what a drive fault's feedback says
 
     def raw_hz(self) -> np.ndarray:
         """Capacitive oscillator frequency (Hz) behind each reading (models/sensor.py)."""

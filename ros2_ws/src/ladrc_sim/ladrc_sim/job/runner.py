@@ -36,6 +36,7 @@ from ladrc_contract.tick import TickInput
 import numpy as np
 from shapely.geometry import box
 
+from ..headless.scenario import DRIVE_FAULT_REASON
 from ..models.axis import H_S, Axis, AxisParams
 from ..models.sensor import Sensor, SensorParams, oscillator_hz
 from ..models.sheet_xy import SheetXY
@@ -80,6 +81,8 @@ class _Command:
 
 class JobRun:
     """A job's result with the attributes of ``headless.runner.RunResult`` a bag needs."""
+
+    drive_fault_reason = DRIVE_FAULT_REASON
 
     def __init__(self, result: JobResult, h_s: float) -> None:
         s = result.series
