@@ -465,8 +465,8 @@ FIGURES: tuple[Figure, ...] = (
            lambda r: f'{r["html_bytes"] / 1e6:.1f} MB, drawn in {_f(r["chromium_render_s"])} s '
                      f'in headless Chromium; a 50 ms window shows {r["points_in_50ms_window"]}'
                      f' of its {r["samples_in_window"]} samples', readme=True),
-    Figure('html-report-cost', '`ladrc report` of a 1-hour bag with / without the HTML, each in '
-           'its own process (least of the rounds)', 'html_report', (),
+    Figure('html-report-cost', '`ladrc report` of a 10-minute bag with / without the HTML, each '
+           'in its own process', 'html_report', ('--seconds', '600'),
            lambda r: f'wall {_f(r["write_s"])} / {_f(r["report_no_html_s"])} s, CPU '
                      f'{_f(r["write_cpu_s"])} / {_f(r["report_no_html_cpu_s"])} s, peak RSS '
                      f'{_f(r["write_peak_rss_mib"])} / {_f(r["report_no_html_peak_rss_mib"])} '
