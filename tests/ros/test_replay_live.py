@@ -36,12 +36,13 @@ HANG_S = 300.0
 S = FollowStatus
 
 
-def _follow_state(statuses) -> tuple[str, str] | None:
-    # the ``status`` of one DiagnosticArray (as the probe decoded it)
+def _follow_state(statuses) -> tuple[str, str, int] | None:
+    # state, fault reason and tick count of one DiagnosticArray (as the probe decoded it)
     for st in statuses:
         if st.name.startswith('ladrc_follow'):
             values = {kv.key: kv.value for kv in st.values}
-            return values.get('state', ''), values.get('fault_reason', '')
+            return (values.get('state', ''), values.get('fault_reason', ''),
+                    int(values.get('ticks', '0')))
     return None
 
 
@@ -79,11 +80,18 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
         diag = probe.record(DiagnosticArray, '/diagnostics', fields='status', keep=_follow_state)
         events = probe.record(FollowEvent, 'follow/events', qos=LATCHED, fields='kind')
 
-        def state() -> str:
+        def last() -> tuple[str, str, int]:
             for i in range(len(diag) - 1, -1, -1):
                 if diag[i] is not None:
-                    return diag[i][0]
-            return ''
+                    return diag[i]
+            return '', '', 0
+
+        def state() -> str:
+            return last()[0]
+
+        def run_for(ticks: int) -> None:  # simulated time (lock step runs slower under load)
+            until = last()[2] + ticks
+            assert probe.spin_until(lambda: last()[2] >= until, HANG_S), last()
         assert probe.spin_until(lambda: state() == 'IDLE', HANG_S), (
             nodes.log('follow') + nodes.log('sim') + nodes.log('recorder'))
         # start following only once the recorder has the status stream (discovery is per
@@ -94,7 +102,7 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
         res = probe.call(StartFollow, 'follow/start', StartFollow.Request(target_gap_mm=1.0))
         assert res.accepted, res.message
         assert probe.spin_until(lambda: state() == 'LADRC', HANG_S), state()
-        probe.spin_for(1.0)
+        run_for(2000)  # 1 s of following before the change
 
         # a parameter change through the parameter service during the run
         got = probe.call(GetParameters, '/ladrc_follow/get_parameters',
@@ -105,7 +113,7 @@ def test_live_bag_replays_bit_for_bit(tmp_path):
                                                 double_value=kp * 1.3))])
         result = probe.call(SetParameters, '/ladrc_follow/set_parameters', req).results[0]
         assert result.successful, result.reason
-        probe.spin_for(1.5)
+        run_for(3000)  # 1.5 s after it
         reached = diag[-1]
 
         assert probe.call(StopFollow, 'follow/stop', StopFollow.Request()).accepted
