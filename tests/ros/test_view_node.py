@@ -225,8 +225,9 @@ def test_operator_calls_reach_the_follow_node_and_the_view_stays_on_loopback(tmp
     nodes = NodeProcesses()
     probe = Probe()
     port = _free_port()
-    up = Bringup(node_specs(str(SCENARIOS / 'follow_sine.yaml')), isolated_env(domain),
-                 tmp_path / 'logs')
+    # in lock step, paced: a loaded machine makes the run slower, never a timing fault
+    up = Bringup(node_specs(str(SCENARIOS / 'follow_sine.yaml'), lockstep=True),
+                 isolated_env(domain), tmp_path / 'logs')
     client = None
     try:
         proc, client = _start_view(nodes, port)
