@@ -256,8 +256,9 @@ FIGURES: tuple[Figure, ...] = (
     Figure('job-speed', 'headless cutting jobs', 'job_speed', ('--repeat', '1'),
            lambda r: f'{_f(r["realtime_x_min"])}× real time at least (target '
                      f'{_f(r["target_x"])}×)', quick=True),
-    Figure('jobs-headless', 'shipped jobs headless (`ladrc job NAME`): job time, pierces, '
-           'contacts, faults, least true gap / target while cutting', 'live_jobs',
+    Figure('jobs-headless',
+           'shipped jobs headless: job time, pierces, contacts, faults, least gap / target',
+           'live_jobs',
            ('--lockstep', '--jobs', 'plate_holes', 'tipping_pair'),
            lambda r: '; '.join(
                f'{n}: {_f(j["headless"]["job_time_s"], 4)} s, {j["headless"]["pierces"]} '
@@ -410,9 +411,10 @@ FIGURES: tuple[Figure, ...] = (
                f'{x.get("crashes")} crashes, follow fault "{(x.get("follow_fault") or "")[:70]}", '
                f'drive fault "{(x.get("drive_fault") or "")[:70]}"' for x in r['rows'])
            + f'; node crashes {r["canopen_node_crashes"]}'),
-    Figure('fault-matrix-linuxcnc', 'fault-injection matrix, LinuxCNC rows (`bringup --cnc '
-           "linuxcnc --fault`): contact, the nozzle after the fault, the controller's final "
-           "state, LinuxCNC's side", 'fault_matrix', ('--only', 'linuxcnc'),
+    Figure('fault-matrix-linuxcnc',
+           'fault-injection matrix, LinuxCNC rows: contact, the nozzle after the fault, final '
+           'states',
+           'fault_matrix', ('--only', 'linuxcnc'),
            _fault_rows_linuxcnc),
     Figure('linuxcnc-jobs', 'shipped jobs under LinuxCNC (bringup --cnc linuxcnc), one run each '
            'with the timing allowance and with the product timing', 'linuxcnc_jobs',
@@ -424,14 +426,16 @@ FIGURES: tuple[Figure, ...] = (
                f'{e["ran_to_end"].get("product", [0, 0])[1]} product), '
                f'{sum(x.get("contacts") or 0 for rs in e["linuxcnc"].values() for x in rs)} '
                'contacts' for n, e in r['jobs'].items())),
-    Figure('linuxcnc-safety', 'shipped jobs under LinuxCNC: the verdict, XY moved before '
-           "ready, the bridge's samples late (p99) and the component's longest gap, why runs "
-           'stopped', 'linuxcnc_jobs',
+    Figure('linuxcnc-safety',
+           'shipped jobs under LinuxCNC: verdict, XY moved before ready, late samples, why runs '
+           'stopped',
+           'linuxcnc_jobs',
            ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'),
            _linuxcnc_safety),
-    Figure('linuxcnc-side-by-side', 'shipped jobs headless (`ladrc job --separate-cnc`) / under '
-           'LinuxCNC (the runs to their end): job time, holds by kind, corner excursion, least '
-           'true gap / target while cutting', 'linuxcnc_jobs',
+    Figure('linuxcnc-side-by-side',
+           'shipped jobs headless / under LinuxCNC (runs to their end): job time, holds, corner '
+           'excursion, least gap / target',
+           'linuxcnc_jobs',
            ('--jobs', 'plate_holes', 'tipping_pair', '--runs', '1'), _linuxcnc_side),
     Figure('linuxcnc-blend', "a job under LinuxCNC with the post-processor's G64 P0.05 and with "
            'G61 (exact stop)', 'linuxcnc_jobs',
@@ -451,9 +455,10 @@ FIGURES: tuple[Figure, ...] = (
                      f'{_f(r["period_p99_us_with"])} µs; status at {_f(r["status_rate_hz"])} '
                      f'Hz to the client, every fault reason received: '
                      f'{r["all_fault_reasons_received"]}; view CPU {_f(r["view_cpu_pct"])} %'),
-    Figure('view-load-runs', "the live view's cost, each run in order (without / with --view): "
-           "loop rate, period p99 and max, drive watchdog trips, the machine's load average; "
-           "the view's CPU, status and events received", 'view_load', (),
+    Figure('view-load-runs',
+           "the live view's cost per run (without / with --view): loop rate, period p99, max, "
+           "watchdog trips, load",
+           'view_load', (),
            lambda r: '; '.join(
                f'{"with" if x["view"] else "without"}: {_f(x.get("rate_hz"), 4)} Hz, period '
                f'p99 {_f(x.get("period_p99_us"))} µs, max {_f(x.get("period_max_us"))} µs, '
@@ -491,9 +496,10 @@ FIGURES: tuple[Figure, ...] = (
                       f'{v["messages_dropped"]} dropped; load average '
                       f'{_f(v["load_avg_1min_mean"])} (max {_f(v["load_avg_1min_max"])}) on '
                       f'{v["cpus"]} cores')(r['live'])),
-    Figure('fleet-scaling', '`ladrc fleet` on a generated fleet (4 machines × 2 days × 2 bags '
-           'of 8 s): generate, read on 1 and 2 workers without cache, per bag vs `ladrc report`, '
-           'worker memory', 'fleet_scaling',
+    Figure('fleet-scaling',
+           '`ladrc fleet` on a generated fleet (4 machines × 2 days × 2 bags of 8 s): generate, '
+           'read on 1 / 2 workers, per bag, memory',
+           'fleet_scaling',
            ('--machines', '4', '--days', '2', '--bags-per-day', '2'),
            lambda r: f'{r["bags"]} bags (seed {r["seed"]}): generated in '
                      f'{_f(r["generate_s_2_workers"])} s on 2 workers; read in '
@@ -520,8 +526,9 @@ FIGURES: tuple[Figure, ...] = (
                      f'workers: {_f(r["engine_s"])} s; {r["passed"]} through the gate, '
                      f'{r["front"]} on the front; peak {_f(r["worker_peak_rss_mb"])} MB a worker, '
                      f'{_f(r["driver_peak_rss_mb"])} MB the driver'),
-    Figure('identified-plant', "the shipped set on the notes' identified plant (§1.2): the "
-           'linear loop per gain reading, the closed loop headless, 300 s on a flat sheet',
+    Figure('identified-plant',
+           "the shipped set on the notes' identified plant (§1.2): loop per gain reading, closed "
+           "loop, 300 s flat sheet",
            'identified_plant', ('--long-s', '300'),
            lambda r: f'LADRC phase margin {_f(r["ladrc_pm_deg_gain_b0_1"])}° at gain 1/16.75, '
                      f'{_f(r["ladrc_pm_deg_gain_1"])}° at gain 1 (delay margin '
