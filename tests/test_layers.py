@@ -312,6 +312,43 @@ def test_no_package_imports_a_private_name_of_another(package):
         f'{package} imports private names of other packages (make them public): {offenders}'
 
 
+# Packages whose public API is their top level (``__init__``'s ``_EXPORTS``, imported on first
+# use): another package imports their names from there, never from a module inside.
+TOP_LEVEL_API = ('ladrc_follow', 'ladrc_sim', 'ladrc_cia402', 'ladrc_linuxcnc')
+
+
+def deep_imports(source: str, own: str) -> list[str]:
+    """``from P.mod import name`` in ``own`` for P of TOP_LEVEL_API, name not a module of P."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if not (isinstance(node, ast.ImportFrom) and node.module and node.level == 0):
+            continue
+        top = node.module.split('.')[0]
+        if top not in TOP_LEVEL_API or top == own or node.module == top:
+            continue
+        folder = SRC / top / Path(*node.module.split('.'))
+        out += [f'{node.module}.{a.name}' for a in node.names
+                if not ((folder / f'{a.name}.py').exists() or (folder / a.name).is_dir())]
+    return out
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_other_packages_import_the_public_api_from_the_top_level(package):
+    offenders = {_rel(p): deep_imports(p.read_text(encoding='utf-8'), package)
+                 for p in _py_files(package)}
+    assert not {k: v for k, v in offenders.items() if v}, \
+        f'{package}: import these from the package itself (its __init__ exports them): {offenders}'
+
+
+@pytest.mark.parametrize('package', TOP_LEVEL_API)
+def test_every_exported_name_resolves(package):
+    import importlib
+    mod = importlib.import_module(package)
+    assert mod.__all__ and sorted(mod.__all__) == mod.__all__
+    missing = [n for n in mod.__all__ if not hasattr(mod, n)]
+    assert not missing, f'{package} exports names its modules do not define: {missing}'
+
+
 # ---- the checks themselves, on small in-memory examples ------------------------------------
 EXAMPLE_XML = """<?xml version="1.0"?>
 <package format="3">

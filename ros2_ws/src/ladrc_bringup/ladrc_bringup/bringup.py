@@ -122,7 +122,7 @@ def node_specs(scenario: str, params_file: str | None = None, bag: str | None = 
 
 def emulated_drive_device() -> str:
     """Return the device file of the emulated CiA 402 drive (ladrc_sim), its EDS beside it."""
-    from ladrc_sim.cia402.can_drive import default_device
+    from ladrc_sim import default_device
 
     return str(default_device())
 
@@ -360,16 +360,16 @@ def job_params_file(job_name: str, base_file: str | None, folder: Path) -> str:
     validation and stability gate as ``ladrc job`` (a headless job runs the same set). Raises
     ValueError with one line when the job or the set is unusable.
     """
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import (
+    from ladrc_follow import (
         ParameterError,
+        check_gate,
         dotted,
         dump_params,
         load_params,
         params_from_dict,
         params_to_dict,
     )
-    from ladrc_sim.job.jobfile import JobError, find_job
+    from ladrc_sim import JobError, find_job
 
     try:
         job = find_job(job_name)
@@ -395,13 +395,13 @@ def run_expects_fault(job: str | None, scenario: str) -> bool:
     Raises ValueError (one line) when the scenario or job does not load.
     """
     if job:
-        from ladrc_sim.job.jobfile import JobError, find_job
+        from ladrc_sim import JobError, find_job
 
         try:
             return bool(getattr(find_job(job), 'expect_fault', False))
         except JobError as exc:
             raise ValueError(str(exc)) from None
-    from ladrc_sim.headless.scenario import ScenarioError, load_scenario
+    from ladrc_sim import ScenarioError, load_scenario
 
     try:
         return load_scenario(scenario).expect_fault
@@ -522,7 +522,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     bus_server = None
     if args.drive == 'cia402' and not args.bus:
-        from ladrc_sim.cia402.bus import start_bus_server
+        from ladrc_sim import start_bus_server
 
         log_dir = Path(args.logs) if args.logs else None
         if log_dir is not None:

@@ -41,7 +41,7 @@ from ladrc_contract import qos
 from ladrc_contract.node_entry import NodeRun, StartError, run_node, stop_signals
 from ladrc_contract.qos import to_rclpy
 from ladrc_contract.realtime import apply_realtime
-from ladrc_follow.node.samples import sim_time_s
+from ladrc_follow import sim_time_s
 from ladrc_msgs.msg import AxisFeedback, CapacitiveHeight, LockStep, SimTruth, VelocityCommand
 from ladrc_msgs.srv import Calibrate
 from ladrc_tools.commissioning.calibration import (

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     logs = Path(a.logs) if a.logs else None
     server = None
     if not a.bus:
-        from ladrc_sim.cia402.bus import start_bus_server
+        from ladrc_sim import start_bus_server
 
         if logs is not None:
             logs.mkdir(parents=True, exist_ok=True)

@@ -149,9 +149,9 @@ def params_file(job: Any, base_file: str | None, allowance: dict[str, Any],
 
     Through the same validation and stability gate as ``bringup --job`` (one line if bad).
     """
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import (
+    from ladrc_follow import (
         ParameterError,
+        check_gate,
         dotted,
         dump_params,
         load_params,
@@ -266,14 +266,8 @@ def hal_snapshot(lc: Any) -> dict[str, Any]:
 
 def main_linuxcnc(args: argparse.Namespace) -> int:
     """Run ``bringup --cnc linuxcnc`` (module docstring); return the exit code."""
-    from ladrc_linuxcnc.machine import (
-        LinuxCnc,
-        LinuxCncError,
-        RunSettings,
-        missing,
-        render_run_config,
-    )
-    from ladrc_sim.job.jobfile import JobError, find_job
+    from ladrc_linuxcnc import LinuxCnc, LinuxCncError, RunSettings, missing, render_run_config
+    from ladrc_sim import JobError, find_job
 
     if not args.job:
         print('bringup: --cnc linuxcnc needs --job (LinuxCNC runs a job)', file=sys.stderr)

@@ -164,10 +164,8 @@ def write_bag(item: BagPlan, out_dir: str | Path) -> str:
     """
     from ladrc_bags import write_run_bag
     from ladrc_bags.provenance import MACHINE_KEY, START_KEY
-    from ladrc_follow.control.follow import FollowController
-    from ladrc_follow.control.params import dump_params, params_from_dict
-    from ladrc_sim.headless.runner import run
-    from ladrc_sim.headless.scenario import scenario_from_dict
+    from ladrc_follow import FollowController, dump_params, params_from_dict
+    from ladrc_sim import run, scenario_from_dict
     import yaml
 
     path = Path(out_dir) / item.machine_id / item.name

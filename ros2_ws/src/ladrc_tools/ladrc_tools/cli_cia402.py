@@ -22,7 +22,7 @@ def _add_cia402(p: argparse.ArgumentParser) -> None:
 
 
 def _run_cia402(args: argparse.Namespace) -> int:
-    from ladrc_cia402.device_file import PlanError, load_device, make_plan, plan_text
+    from ladrc_cia402 import PlanError, load_device, make_plan, plan_text
 
     if not 0.1 <= args.period_ms <= 100.0:
         raise CliError(f'--period-ms {args.period_ms:g}: must be in [0.1, 100]')

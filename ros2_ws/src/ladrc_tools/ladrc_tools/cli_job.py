@@ -49,7 +49,7 @@ def _add_job(p: argparse.ArgumentParser) -> None:
 
 def load(name: str) -> Any:
     """Return the job of a path or a shipped name; CliError (one line) when unusable."""
-    from ladrc_sim.job.jobfile import JobError, find_job
+    from ladrc_sim import JobError, find_job
 
     try:
         return find_job(name)
@@ -83,10 +83,8 @@ def run(job: Any, off: list[str], record_internals: bool = False,
 
     ``separate_cnc``: as with the CNC node (``run_job``'s ``separate_cnc``).
     """
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.follow import FollowController
-    from ladrc_follow.control.params import ParameterError, params_from_dict
-    from ladrc_sim.job.runner import run_job
+    from ladrc_follow import FollowController, ParameterError, check_gate, params_from_dict
+    from ladrc_sim import run_job
 
     cnc: dict[str, Any] = {}
     controller: dict[str, Any] = {}
@@ -111,8 +109,8 @@ def run(job: Any, off: list[str], record_internals: bool = False,
 def write_bag(job: Any, result: Any, path: Path) -> None:
     """Write a job run as a bag: the live layout, the job file and its DXF in run/scenario."""
     from ladrc_bags import write_run_bag
-    from ladrc_follow.control.params import dump_params
-    from ladrc_sim.job.jobfile import run_text
+    from ladrc_follow import dump_params
+    from ladrc_sim import run_text
 
     write_run_bag(result.as_run(), path, dump_params(result.params), run_text(job))
 

@@ -65,7 +65,7 @@ def _add_simulate(p: argparse.ArgumentParser) -> None:
 def make_controller(kind: str, params: Any) -> Any:
     """Return a FollowController for ``kind`` (``ladrc`` | ``pid``) with ``params``."""
     try:
-        from ladrc_follow.control.follow import FollowController
+        from ladrc_follow import FollowController
     except ImportError as exc:
         raise CliError(f'the follow controller is not available yet ({exc})') from None
     try:
@@ -75,15 +75,8 @@ def make_controller(kind: str, params: Any) -> Any:
 
 
 def _run_simulate(a: argparse.Namespace) -> int:
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import (
-        ControllerParams,
-        ParameterError,
-        dump_params,
-        load_params,
-    )
-    from ladrc_sim.headless.runner import run, summary
-    from ladrc_sim.headless.scenario import ScenarioError, load_scenario
+    from ladrc_follow import ControllerParams, ParameterError, check_gate, dump_params, load_params
+    from ladrc_sim import ScenarioError, load_scenario, run, summary
 
     try:
         scenario = load_scenario(a.scenario)
@@ -119,7 +112,7 @@ def _scenario_text(arg: str, scenario: Any) -> str:
     if source and Path(source).is_file():
         return Path(source).read_text(encoding='utf-8')
     try:
-        from ladrc_sim.headless.scenario import list_scenarios
+        from ladrc_sim import list_scenarios
 
         for f in list_scenarios():
             if f.stem == arg:
@@ -149,8 +142,7 @@ def _add_suite(p: argparse.ArgumentParser) -> None:
 
 
 def _run_suite(a: argparse.Namespace) -> int:
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import ParameterError, load_params
+    from ladrc_follow import ParameterError, check_gate, load_params
 
     from .offline.suite import SuiteError, markdown_table, summary, timed_suite, write_outputs
 
@@ -256,7 +248,7 @@ def _print_own_replay(summary: dict[str, Any], out: Path | None) -> int:
 
 
 def _run_replay(a: argparse.Namespace) -> int:
-    from ladrc_follow.control.params import ParameterError
+    from ladrc_follow import ParameterError
 
     from .offline.replay import (
         Replay,
@@ -327,8 +319,7 @@ def _add_analyze(p: argparse.ArgumentParser) -> None:
 
 
 def _run_analyze(a: argparse.Namespace) -> int:
-    from ladrc_follow.analysis.loop import AxisModel
-    from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
+    from ladrc_follow import AxisModel, ControllerParams, ParameterError, load_params
 
     from .offline.analyze import write_analysis
     from .offline.report import strict_json
@@ -379,10 +370,14 @@ def _add_tune(p: argparse.ArgumentParser) -> None:
 
 
 def _run_tune(a: argparse.Namespace) -> int:
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import ControllerParams, ParameterError, load_params
-    from ladrc_sim.headless.batch import BatchUnsupported, batchable_scenarios, check_batchable
-    from ladrc_sim.headless.scenario import ScenarioError, load_scenario
+    from ladrc_follow import ControllerParams, ParameterError, check_gate, load_params
+    from ladrc_sim import (
+        BatchUnsupported,
+        ScenarioError,
+        batchable_scenarios,
+        check_batchable,
+        load_scenario,
+    )
 
     from .offline.report import stderr_progress, strict_json
     from .offline.tune import parse_range, sweep, write_tune
@@ -451,7 +446,7 @@ kp·h < 1, contradicting limits, the follow windows) are in `ladrc_follow/contro
 def parameters_doc() -> str:
     """Return docs/parameters.md: the header and the generated table."""
     from ladrc_contract.schema import markdown_table
-    from ladrc_follow.control.params import ControllerParams
+    from ladrc_follow import ControllerParams
 
     return PARAMETERS_DOC_HEAD + markdown_table(ControllerParams())
 
@@ -465,8 +460,7 @@ def _add_params(p: argparse.ArgumentParser) -> None:
 
 
 def _run_params(a: argparse.Namespace) -> int:
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import ParameterError, load_params, parameter_file
+    from ladrc_follow import ParameterError, check_gate, load_params, parameter_file
 
     if a.check:
         try:

@@ -60,17 +60,19 @@ from typing import Any, Callable
 
 import canopen
 from canopen.sdo import SdoAbortedError
-from ladrc_cia402 import mapping
-from ladrc_cia402.device_file import DeviceFile, entry_range, load_device, make_plan
-from ladrc_cia402.ds402 import (
-    QUICK_STOP_OPTION_CODE,
-    State,
-)
-from ladrc_cia402.emcy import (
+from ladrc_cia402 import (
     ERROR_REGISTER,
+    QUICK_STOP_OPTION_CODE,
     REG_COMMUNICATION,
+    AnalogScale,
+    DeviceFile,
+    DriveUnits,
+    State,
+    entry_range,
+    load_device,
+    make_plan,
+    mapping,
 )
-from ladrc_cia402.units import AnalogScale, DriveUnits
 
 from .device import Cia402Device
 

@@ -25,19 +25,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from ladrc_cia402.ds402 import (
+from ladrc_cia402 import (
     CW_FAULT_RESET,
     MODE_CYCLIC_SYNC_VELOCITY,
     MODE_PROFILE_VELOCITY,
+    REG_GENERIC,
     SW_REMOTE,
     SW_VOLTAGE_ENABLED,
     Command,
+    DriveUnits,
     State,
     command_of,
     statusword_bits,
 )
-from ladrc_cia402.emcy import REG_GENERIC
-from ladrc_cia402.units import DriveUnits
 
 SUPPORTED_MODES = (MODE_PROFILE_VELOCITY, MODE_CYCLIC_SYNC_VELOCITY)
 POWERED = (State.READY_TO_SWITCH_ON, State.SWITCHED_ON, State.OPERATION_ENABLED,

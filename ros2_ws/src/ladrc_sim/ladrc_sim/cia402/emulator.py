@@ -20,7 +20,7 @@ import logging
 from pathlib import Path
 import sys
 
-from ladrc_cia402.device_file import PlanError
+from ladrc_cia402 import PlanError
 from ladrc_contract.node_entry import stop_signals
 
 from ..headless.runner import run

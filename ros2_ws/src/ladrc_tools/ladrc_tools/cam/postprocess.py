@@ -122,8 +122,7 @@ def hold_stretches(job: Any, program: Any, hold_mm: float, release_mm: float,
     the CNC station's (``ladrc_sim.job.cnc_station``): kerfs laid as the path is walked, each
     contour dropped once cut.
     """
-    from ladrc_sim.job.world import KerfLayer
-    from ladrc_sim.models.sheet_xy import SheetXY
+    from ladrc_sim import KerfLayer, SheetXY
 
     sheet = SheetXY(job.plate(), job.surface, nozzle_diameter_mm=job.sensor.nozzle_diameter_mm)
     sheet.prepare([c.region for c in program.contours])
@@ -181,7 +180,7 @@ def postprocess(job: Any, settings: PostSettings | None = None,
     program = job.program()
     hold_mm, release_mm = s.edge_ahead_hold_mm, s.edge_release_mm
     if hold_mm < 0.0 or release_mm < 0.0:
-        from ladrc_follow.control.cnc_params import CncParams
+        from ladrc_follow import CncParams
 
         base = CncParams()
         given = {**(controller if controller is not None else job.controller)}

@@ -32,11 +32,7 @@ import json
 import math
 from typing import Any, NamedTuple
 
-from ladrc_follow.control.cap_table import (
-    STATUS_COLLISION,
-    STATUS_FAULT,
-    STATUS_OK,
-)
+from ladrc_follow import STATUS_COLLISION, STATUS_FAULT, STATUS_OK
 import numpy as np
 
 H_S = 0.0005
@@ -447,7 +443,7 @@ class HeadlessSweep:
     """
 
     def __init__(self, procedure: SweepProcedure, sensor_params: Any) -> None:
-        from ladrc_sim.models.sensor import oscillator_hz
+        from ladrc_sim import oscillator_hz
 
         self.procedure = procedure
         self._osc = oscillator_hz
@@ -502,8 +498,7 @@ def sim_scenario(start_gap_mm: float = 5.0, motion: SweepMotion | None = None,
 def run_headless(scenario: dict[str, Any], motion: SweepMotion | None = None
                  ) -> SweepProcedure:
     """Play the sweep on the headless simulator; return the finished procedure."""
-    from ladrc_sim.headless.runner import run
-    from ladrc_sim.headless.scenario import scenario_from_dict
+    from ladrc_sim import run, scenario_from_dict
 
     sc = scenario_from_dict(scenario)
     proc = SweepProcedure(motion)

@@ -14,7 +14,7 @@ from pathlib import Path
 import time
 from typing import Any
 
-from ladrc_follow.control.cap_table import table_yaml
+from ladrc_follow import table_yaml
 import numpy as np
 
 from .calibration import COLUMNS, Phase, SweepMotion, SweepRecord

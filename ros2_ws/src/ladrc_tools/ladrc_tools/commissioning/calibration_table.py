@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from ladrc_follow.control.cap_table import STATUS_OK, CapTable, RawToGap, TableLimits
+from ladrc_follow import STATUS_OK, CapTable, RawToGap, TableLimits
 import numpy as np
 
 from .calibration import CalibrationError, Phase, SweepRecord, TableSettings

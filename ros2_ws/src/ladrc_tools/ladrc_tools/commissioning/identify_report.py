@@ -276,7 +276,7 @@ def plot(ident: Identification, path: Path) -> None:
 
 def params_yaml(ident: Identification) -> str:
     """Return ``params.yaml``: the suggested set (ROS 2 layout) with a provenance header."""
-    from ladrc_follow.control.params import dump_params
+    from ladrc_follow import dump_params
 
     a, g = ident.axis, ident.suggestion
     head = [
@@ -291,8 +291,7 @@ def params_yaml(ident: Identification) -> str:
 
 def write_outputs(ident: Identification, out: Path) -> dict[str, Any]:
     """Write the output folder (never overwritten); return the summary."""
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.control.params import ParameterError, load_params
+    from ladrc_follow import ParameterError, check_gate, load_params
 
     from ..offline.outdir import building
 

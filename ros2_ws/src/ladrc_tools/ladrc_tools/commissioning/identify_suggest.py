@@ -40,9 +40,15 @@ def suggest(axis: AxisFit, sensor_lag_s: float = 0.0) -> Suggestion:
 
     Raises :class:`IdentifyError` when no set on the search passes the stability gate.
     """
-    from ladrc_follow.analysis.gate import check_gate
-    from ladrc_follow.analysis.loop import AxisModel, analyse_params, frequency_grid
-    from ladrc_follow.control.params import ControllerParams, ParameterError, params_from_dict
+    from ladrc_follow import (
+        AxisModel,
+        ControllerParams,
+        ParameterError,
+        analyse_params,
+        check_gate,
+        frequency_grid,
+        params_from_dict,
+    )
 
     # the controller's tick, not the bag's sample period: the gate counts dead time in it
     h = ControllerParams().h_s

@@ -51,7 +51,7 @@ def scenario_dict(source: str | Path | None) -> dict[str, Any]:
     """Return the scenario ``source`` (file, shipped name, None: built-in) as a dict."""
     if source is None:
         return copy.deepcopy(IDENTIFY_SCENARIO)
-    from ladrc_sim.headless.scenario import list_scenarios
+    from ladrc_sim import list_scenarios
 
     p = Path(source)
     if not p.exists() and p.suffix == '' and p.name == str(source):
@@ -110,8 +110,7 @@ class ExcitationRun:
 def run_excitation(data: dict[str, Any], excitation: Excitation,
                    limits: PlayerLimits | None = None, source: str = '') -> ExcitationRun:
     """Play ``excitation`` on the scenario dict ``data`` headless; return the run."""
-    from ladrc_sim.headless.runner import run
-    from ladrc_sim.headless.scenario import ScenarioError, scenario_from_dict
+    from ladrc_sim import ScenarioError, run, scenario_from_dict
 
     limits = limits or PlayerLimits()
     reasons = excitation.problems(H_S) + limits.problems()

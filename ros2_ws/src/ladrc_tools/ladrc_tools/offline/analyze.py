@@ -15,14 +15,14 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ladrc_follow.analysis.loop import (
+from ladrc_follow import (
     AxisModel,
+    ControllerParams,
     LoopAnalysis,
     ObserverAnalysis,
     analyse_observer,
     analyse_params,
 )
-from ladrc_follow.control.params import ControllerParams
 import numpy as np
 
 from .outdir import building
@@ -129,7 +129,7 @@ def markdown(fig: dict[str, Any], params_source: str, mode: str, axis: AxisModel
 def write_analysis(params: ControllerParams, params_source: str, mode: str | None,
                    axis: AxisModel, out_dir: Path) -> tuple[Path, dict[str, Any]]:
     """Analyse and write ``out_dir``; return it and the figures."""
-    from ladrc_follow.analysis.gate import stability_reasons
+    from ladrc_follow import stability_reasons
 
     mode = mode or params.follow.controller
     an = analyse_params(params, axis, mode)

@@ -36,8 +36,7 @@ import math
 from math import comb
 from typing import Sequence
 
-from ladrc_follow.analysis.observers import LinearESO
-from ladrc_follow.control.eso import bandwidth_gains, continuous_matrices
+from ladrc_follow import LinearESO, bandwidth_gains, continuous_matrices
 import numpy as np
 from scipy import optimize, signal
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ladrc_follow.analysis.loop import StateSpace, analyse, controller_ss
+from ladrc_follow import StateSpace, analyse, controller_ss
 import numpy as np
 from scipy import signal
 

@@ -65,7 +65,7 @@ def job_text(bag: Bag) -> tuple[str, str] | None:
 
 def _load(job_yaml: str, dxf_text: str, folder: Path) -> Any:
     """Load the job from its texts, its DXF beside it in ``folder``."""
-    from ladrc_sim.job.jobfile import load_job
+    from ladrc_sim import load_job
 
     data = yaml.safe_load(job_yaml)
     if not isinstance(data, dict):
@@ -108,7 +108,7 @@ def job_in_bag(bag: Bag, corner_ratio: float = 0.8) -> JobInBag | None:
 
     ``corner_ratio``: the run's ``cnc.corner_lock_ratio`` (what counts as a corner).
     """
-    from ladrc_sim.job.runner import job_figures
+    from ladrc_sim import job_figures
 
     texts = job_text(bag)
     if texts is None or not bag.has('sim/truth'):

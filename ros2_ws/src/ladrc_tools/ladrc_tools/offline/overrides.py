@@ -9,13 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from ladrc_follow.control.params import (
-    ControllerParams,
-    ParameterError,
-    dotted,
-    params_from_dict,
-    params_to_dict,
-)
+from ladrc_follow import ControllerParams, ParameterError, dotted, params_from_dict, params_to_dict
 import yaml
 
 from .recording import Recording, ReplayError

@@ -19,12 +19,7 @@ from ladrc_bags import Bag, BagError, open_bag, read_first_text
 from ladrc_contract.codes import EventKind, FollowState
 from ladrc_contract.events import COMMAND_KIND
 from ladrc_contract.events import decode as decode_event
-from ladrc_follow.control.follow import INTERNALS_KEYS
-from ladrc_follow.control.params import (
-    ControllerParams,
-    ParameterError,
-    params_from_dict,
-)
+from ladrc_follow import INTERNALS_KEYS, ControllerParams, ParameterError, params_from_dict
 import numpy as np
 import yaml
 

@@ -15,13 +15,8 @@ import operator
 import time
 from typing import Any, Callable, Iterator, Mapping
 
-from ladrc_contract.tick import CncInput
-from ladrc_follow.control.follow import FollowController, TickInput
-from ladrc_follow.control.params import (
-    ControllerParams,
-    ParameterError,
-    params_from_dict,
-)
+from ladrc_contract.tick import CncInput, TickInput
+from ladrc_follow import ControllerParams, FollowController, ParameterError, params_from_dict
 import numpy as np
 import yaml
 

@@ -53,7 +53,7 @@ SEED_EDGE = LAW_ONLY
 
 
 def _params(d: dict) -> Any:
-    from ladrc_follow.control.params import params_from_dict
+    from ladrc_follow import params_from_dict
 
     d = {**d, 'edge': {**SEED_EDGE, **d.get('edge', {})}}
     # an experiment harness: the notes' settings run as they are (docs/loop-analysis.md)
@@ -61,9 +61,8 @@ def _params(d: dict) -> Any:
 
 
 def _run(scenario: Any, params: dict, *, internals: bool = True) -> tuple[Any, Any]:
-    from ladrc_follow.control.follow import FollowController
-    from ladrc_sim.headless.runner import run
-    from ladrc_sim.headless.scenario import load_scenario, scenario_from_dict
+    from ladrc_follow import FollowController
+    from ladrc_sim import load_scenario, run, scenario_from_dict
 
     sc = (scenario_from_dict(scenario) if isinstance(scenario, dict)
           else load_scenario(scenario) if isinstance(scenario, str) else scenario)
@@ -150,7 +149,7 @@ def step(label: str, observer: str, reinterpolate: bool = False) -> dict:
 # ---- 3. the thin sheet with the notes' settings -------------------------------------------
 def thin_sheet(label: str, params: dict, machining: bool = False) -> dict:
     """``thin_sheet`` with ``params``; ``machining`` on from the start (suppression acts)."""
-    from ladrc_sim.headless.scenario import Event, load_scenario
+    from ladrc_sim import Event, load_scenario
 
     sc = load_scenario('thin_sheet')
     if machining:
@@ -176,7 +175,7 @@ NOTES_PID = {'follow': {'controller': 'pid'}, 'pid': {'suppress_level': 5}}
 # ---- 4. the nonlinear observer --------------------------------------------------------------
 def fal_params(mode: str, delta_mm: float, alpha: float = 0.5, table: bool = False) -> dict:
     """Return the fal-ESO whose linear zone is the shipped LESO: β_i·δ^(1 − α_i)."""
-    from ladrc_follow.control.eso import fal_alphas
+    from ladrc_follow import fal_alphas
 
     alphas = fal_alphas(1, mode, alpha)
     betas = [b * delta_mm ** (1.0 - a) for b, a in zip(SET_98, alphas, strict=True)]

@@ -254,7 +254,7 @@ def measure(result: Any, scenario_name: str, variant: str, fault_reason: str) ->
 # ---- running ---------------------------------------------------------------------------------
 def variant_params(base: Any, variant: Variant) -> Any:
     """Return the base :class:`ControllerParams` with the variant's overrides (validated)."""
-    from ladrc_follow.control.params import params_from_dict, params_to_dict
+    from ladrc_follow import params_from_dict, params_to_dict
 
     d = params_to_dict(base)
     for key, value in variant.overrides.items():
@@ -279,10 +279,8 @@ SEED_EDGE_RUNS = ('edge_step_2_5', 'edge_step_3_1', 'edge_open_10_1')
 
 
 def _run_one(job: tuple[str, str, dict, bool]) -> SuiteRow:
-    from ladrc_follow.control.follow import FollowController
-    from ladrc_follow.control.params import params_from_dict
-    from ladrc_sim.headless.runner import run
-    from ladrc_sim.headless.scenario import load_scenario
+    from ladrc_follow import FollowController, params_from_dict
+    from ladrc_sim import load_scenario, run
 
     scenario_ref, variant, params_dict, quick = job
     sc = load_scenario(scenario_ref)
@@ -300,7 +298,7 @@ def _run_one(job: tuple[str, str, dict, bool]) -> SuiteRow:
 
 def resolve_scenarios(names: Iterable[str] | None) -> list[str]:
     """Scenario references (shipped names or paths); all shipped ones for None."""
-    from ladrc_sim.headless.scenario import list_scenarios
+    from ladrc_sim import list_scenarios
 
     shipped = {p.stem: p for p in list_scenarios()}
     if not names:
@@ -345,7 +343,7 @@ def run_suite(scenarios: Iterable[str] | None = None, variants: Iterable[str] | 
     modifies; ``laws_only`` turns the edge verification off in it (:data:`LAW_ONLY`);
     ``jobs`` > 1 runs the cases in a process pool of that many workers.
     """
-    from ladrc_follow.control.params import ControllerParams, ParameterError, params_to_dict
+    from ladrc_follow import ControllerParams, ParameterError, params_to_dict
 
     if not (isinstance(jobs, int) and jobs >= 1):
         raise SuiteError(f'jobs must be an integer >= 1, got {jobs!r}')

@@ -30,11 +30,15 @@ import math
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from ladrc_follow.analysis.gate import stability_reasons
-from ladrc_follow.control.ladrc import LADRC
-from ladrc_follow.control.params import ControllerParams, ParameterError, check, dump_params
-from ladrc_sim.headless.batch import run_batch
-from ladrc_sim.headless.scenario import load_scenario
+from ladrc_follow import (
+    LADRC,
+    ControllerParams,
+    ParameterError,
+    check,
+    dump_params,
+    stability_reasons,
+)
+from ladrc_sim import load_scenario, run_batch
 import numpy as np
 
 from .outdir import building

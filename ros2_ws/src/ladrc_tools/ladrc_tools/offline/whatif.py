@@ -14,10 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ladrc_contract.codes import LimitFlag
-from ladrc_follow.control.params import (
-    ControllerParams,
-    dump_params,
-)
+from ladrc_follow import ControllerParams, dump_params
 import numpy as np
 
 from .envelope import Envelope
