@@ -16,7 +16,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_lockstep import BIN, JOB_FIGURES, assert_equal_bags, lockstep_run, run  # noqa: E402
+from test_lockstep import JOB_FIGURES, TOOLS, assert_equal_bags, lockstep_run, run  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -56,7 +56,7 @@ def test_live_lockstep_shop_drawing_equals_headless(tmp_path):
     name = shop_job(tmp_path)
     live, headless = tmp_path / 'live', tmp_path / 'headless'
     figures = lockstep_run(name, live, tmp_path / 'logs', '--job')
-    res = run([str(BIN / 'ladrc'), 'job', name, '-o', str(headless)])
+    res = run([str(TOOLS / 'ladrc'), 'job', name, '-o', str(headless)])
     assert res.returncode == 0, res.stdout[-2000:]
     head = json.loads(res.stdout.strip().splitlines()[-1])
     for key in JOB_FIGURES:
