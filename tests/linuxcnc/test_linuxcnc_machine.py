@@ -33,7 +33,7 @@ from ladrc_linuxcnc.machine import (
     render_run_config,
     run_processes,
 )
-from linuxcnc_runs import DATA, Client
+from linuxcnc_runs import DATA, Client, hal_u32, resume
 import pytest
 from system import require
 
@@ -77,20 +77,6 @@ def linuxcnc(tmp_path):
         assert not LINUXCNC_LOCK.exists()
         keys = subprocess.run(['ipcs', '-m'], capture_output=True, text=True).stdout
         assert '0x48414c32' not in keys, 'HAL shared memory left'
-
-
-def resume(lc: LinuxCnc) -> None:
-    """Resume the program as the operator does (``halui.program.resume``, its rising edge)."""
-    for v in ('1', '0'):
-        r = lc.halcmd('setp', 'halui.program.resume', v)
-        assert r.returncode == 0, r.stderr
-        time.sleep(0.05)
-
-
-def hal_u32(lc: LinuxCnc, pin: str) -> int:
-    r = lc.halcmd('getp', pin)
-    assert r.returncode == 0, r.stderr
-    return int(r.stdout.split()[0])
 
 
 def test_linuxcnc_waits_holds_and_pauses_for_the_height_controller(linuxcnc):

@@ -186,3 +186,17 @@ class Client:
 
     def since(self, t: float) -> list[p.LcncSample]:
         return [s for ts, s in self.samples if ts >= t]
+
+
+def resume(lc) -> None:
+    """Resume the program as the operator does (``halui.program.resume``, its rising edge)."""
+    for v in ('1', '0'):
+        r = lc.halcmd('setp', 'halui.program.resume', v)
+        assert r.returncode == 0, r.stderr
+        time.sleep(0.05)
+
+
+def hal_u32(lc, pin: str) -> int:
+    r = lc.halcmd('getp', pin)
+    assert r.returncode == 0, r.stderr
+    return int(r.stdout.split()[0])
