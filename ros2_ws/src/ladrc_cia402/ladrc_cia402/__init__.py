@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from importlib import import_module
+from ladrc_contract.lazy_api import lazy_api
 
 # the public API (name: module), imported on first use: importing the package
 # loads nothing else
@@ -30,18 +30,4 @@ _EXPORTS = {
     'statusword_bits': 'ds402',
 }
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    """Import a public name from its module on first use."""
-    try:
-        module = _EXPORTS[name]
-    except KeyError:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
-    value = getattr(import_module(f'{__name__}.{module}'), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_api(__name__, _EXPORTS)

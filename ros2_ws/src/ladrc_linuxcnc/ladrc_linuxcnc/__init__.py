@@ -9,7 +9,8 @@ from __future__ import annotations
 from importlib import import_module
 
 # the public API (name: module), imported on first use: importing the package
-# loads nothing else (the LinuxCNC-side modules import only protocol)
+# loads nothing else. Its own copy of ladrc_contract.lazy_api: the LinuxCNC-side modules run on
+# the system Python, where only the standard library and protocol are there
 _EXPORTS = {
     'LinuxCnc': 'machine',
     'LinuxCncError': 'machine',

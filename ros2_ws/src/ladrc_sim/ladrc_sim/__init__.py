@@ -6,7 +6,7 @@ The public names below are what other packages use; the nodes are the ``sim_node
 
 from __future__ import annotations
 
-from importlib import import_module
+from ladrc_contract.lazy_api import lazy_api
 
 # the public API (name: module), imported on first use: importing the package
 # loads nothing else
@@ -35,18 +35,4 @@ _EXPORTS = {
     'summary': 'headless.runner',
 }
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    """Import a public name from its module on first use."""
-    try:
-        module = _EXPORTS[name]
-    except KeyError:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
-    value = getattr(import_module(f'{__name__}.{module}'), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_api(__name__, _EXPORTS)
